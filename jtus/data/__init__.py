@@ -1,0 +1,1 @@
+"""Data edge: conventions, datasets, EXR import and export."""

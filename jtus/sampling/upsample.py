@@ -1,0 +1,125 @@
+"""Up-sampling, pixel shuffle and motion-vector dilation, NHWC.
+
+``f`` is the integer up-sampling factor: a low-resolution (LR) image
+``[B,h,w,C]`` maps to a high-resolution (HR) one ``[B,f*h,f*w,C]``, HR pixel
+(Y, X) covering LR coordinates ``[X/f, (X+1)/f) x [Y/f, (Y+1)/f)``.
+``jitter [B,2]`` is the sample's offset inside its LR pixel in [0,1)^2,
+(x, y), as in ``docs/conventions.md``.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from jtus.sampling.warp import pixel_grid, sample
+
+
+def _check_factor(factor):
+    if not isinstance(factor, int) or factor < 1:
+        raise ValueError(f"factor: expected a positive int, got {factor!r}")
+
+
+def _check_jitter(x, jitter):
+    if jitter.shape != (x.shape[0], 2):
+        raise ValueError(f"jitter: expected [B,2] with B={x.shape[0]}, got {jitter.shape}")
+
+
+def pixel_shuffle(x, factor):
+    """``[B,h,w,C*f*f] -> [B,f*h,f*w,C]``, the channel order of ``torch.nn.PixelShuffle``
+    (input channel ``c*f*f + dy*f + dx`` lands at sub-pixel (dy, dx) of channel c)."""
+    _check_factor(factor)
+    b, h, w, c = x.shape
+    if c % (factor * factor):
+        raise ValueError(f"x: channels {c} not divisible by factor^2={factor * factor}")
+    co = c // (factor * factor)
+    x = x.reshape(b, h, w, co, factor, factor)
+    x = x.transpose(0, 1, 4, 2, 5, 3)  # b, h, dy, w, dx, c
+    return x.reshape(b, h * factor, w * factor, co)
+
+
+def pixel_unshuffle(x, factor):
+    """Inverse of ``pixel_shuffle``: ``[B,f*h,f*w,C] -> [B,h,w,C*f*f]``."""
+    _check_factor(factor)
+    b, hh, ww, c = x.shape
+    if hh % factor or ww % factor:
+        raise ValueError(f"x: size {hh}x{ww} not divisible by factor {factor}")
+    h, w = hh // factor, ww // factor
+    x = x.reshape(b, h, factor, w, factor, c)
+    x = x.transpose(0, 1, 3, 5, 2, 4)  # b, h, w, c, dy, dx
+    return x.reshape(b, h, w, c * factor * factor)
+
+
+def jitter_cell(jitter, factor):
+    """Sub-pixel (x, y) of the HR pixel under the jittered sample, ints in [0,f)."""
+    return jnp.clip(jnp.floor(jitter * factor).astype(jnp.int32), 0, factor - 1)
+
+
+def zero_upsample(x, jitter, factor):
+    """Place each LR sample at the HR pixel under its jittered position; zeros elsewhere.
+
+    ``x [B,h,w,C]``, ``jitter [B,2]`` -> ``[B,f*h,f*w,C]``. Built as a product with
+    a one-hot sub-pixel mask, so it is differentiable in ``x`` and jit-able with
+    traced jitter.
+    """
+    _check_factor(factor)
+    _check_jitter(x, jitter)
+    cell = jitter_cell(jitter, factor)
+    k = jnp.arange(factor)
+    onehot_x = (k[None, :] == cell[:, 0:1]).astype(x.dtype)  # [B,f]
+    onehot_y = (k[None, :] == cell[:, 1:2]).astype(x.dtype)
+    mask = onehot_y[:, :, None] * onehot_x[:, None, :]  # [B,dy,dx]
+    b, h, w, c = x.shape
+    out = x[:, :, None, :, None, :] * mask[:, None, :, None, :, None]
+    return out.reshape(b, h * factor, w * factor, c)
+
+
+def hr_to_lr_coords(batch, height, width, factor, dtype=jnp.float32):
+    """Centres of the HR pixels, ``[B,f*h,f*w,2]``, in LR pixel coordinates."""
+    return pixel_grid(batch, height * factor, width * factor, dtype) / factor
+
+
+def upsample(x, factor, method="bilinear", a=-0.75):
+    """Plain up-sampling (no jitter): HR pixel centres sampled in the LR image.
+
+    With ``bilinear`` this equals ``F.interpolate(mode='bilinear',
+    align_corners=False)``; it is how motion vectors are brought to HR (values
+    are not rescaled: multiply by ``f`` for HR-pixel units).
+    """
+    _check_factor(factor)
+    b, h, w, _ = x.shape
+    return sample(x, hr_to_lr_coords(b, h, w, factor, x.dtype), method=method, a=a)
+
+
+def jitter_aligned_upsample(x, jitter, factor, method="bilinear", a=-0.75):
+    """Jitter-aligned up-sampling (JAU, thesis sec. 4.1.1).
+
+    LR sample (i, j) was rendered at LR position ``(j, i) + jitter``; sampling
+    the LR image at ``p - jitter + 0.5`` for each HR centre ``p`` puts that
+    sample exactly under its true position.
+    """
+    _check_factor(factor)
+    _check_jitter(x, jitter)
+    b, h, w, _ = x.shape
+    xy = hr_to_lr_coords(b, h, w, factor, x.dtype)
+    xy = xy - jitter.astype(x.dtype)[:, None, None, :] + 0.5
+    return sample(x, xy, method=method, a=a)
+
+
+_NEIGHBOURS = [(0, 0)] + [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0)]
+
+
+def dilate_motion(motion, depth):
+    """3x3 motion-vector dilation: each pixel takes the vector of its nearest neighbour.
+
+    ``motion [B,h,w,2]``, ``depth [B,h,w,1]`` (device depth, smaller is nearer).
+    Borders replicate the edge; on ties the centre pixel wins, then raster order.
+    """
+    if depth.shape != motion.shape[:3] + (1,):
+        raise ValueError(f"depth: expected {motion.shape[:3] + (1,)}, got {depth.shape}")
+    h, w = motion.shape[1:3]
+    mp = jnp.pad(motion, ((0, 0), (1, 1), (1, 1), (0, 0)), mode="edge")
+    dp = jnp.pad(depth, ((0, 0), (1, 1), (1, 1), (0, 0)), mode="edge")
+    mvs = jnp.stack([mp[:, 1 + dy:1 + dy + h, 1 + dx:1 + dx + w] for dy, dx in _NEIGHBOURS], 0)
+    ds = jnp.stack([dp[:, 1 + dy:1 + dy + h, 1 + dx:1 + dx + w] for dy, dx in _NEIGHBOURS], 0)
+    best = jnp.argmin(ds, axis=0)  # first minimum wins
+    return jnp.take_along_axis(mvs, best[None], axis=0)[0]

@@ -1,0 +1,198 @@
+"""Hand-written image warps: sample an image at continuous pixel coordinates.
+
+Coordinates (see ``docs/conventions.md``): ``xy[..., 0]`` is x (to the right,
+along the width), ``xy[..., 1]`` is y (down, along the height), in pixels of
+the image being sampled, with the centre of pixel (row i, col j) at
+``(j + 0.5, i + 0.5)``. The image covers ``[0, W] x [0, H]``.
+
+Borders: every tap index is clamped into the image separately (replicate
+padding). For bilinear that equals clamping the coordinate; for the cubic
+kernels it does not, and it is what ``torch.nn.functional.grid_sample(...,
+padding_mode='border')`` does. ``inside_mask`` tells which coordinates fall
+outside the image, for callers (DLCTUS) that pad with something else.
+
+All functions are pure JAX, jit-able and differentiable with respect to the
+image and the coordinates (``floor`` cuts no gradient: the fractional part
+carries it, so gradients are non-zero at pixel centres).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+METHODS = ("nearest", "bilinear", "bicubic", "catmull_rom", "bicubic9", "bicubic5")
+CATMULL_ROM_A = -0.5
+PYTORCH_A = -0.75
+
+
+def _check(image, xy):
+    if image.ndim != 4:
+        raise ValueError(f"image: expected [B,H,W,C], got shape {image.shape}")
+    if xy.ndim != 4 or xy.shape[-1] != 2 or xy.shape[0] != image.shape[0]:
+        raise ValueError(
+            f"xy: expected [B,Ho,Wo,2] with B={image.shape[0]}, got shape {xy.shape}")
+
+
+def _gather(image, iy, ix):
+    """image [B,H,W,C]; integer iy, ix [B,...] (already clamped) -> [B,...,C]."""
+    return jax.vmap(lambda im, y, x: im[y, x])(image, iy, ix)
+
+
+def keys_weights(t, a):
+    """Keys cubic-convolution weights of the taps at offsets -1, 0, 1, 2.
+
+    ``t`` in [0, 1) is the distance from tap 0. ``a = -0.5`` is Catmull-Rom,
+    ``a = -0.75`` PyTorch's bicubic. Returns a tuple of four arrays like ``t``.
+    """
+    def near(d):  # |d| <= 1
+        return ((a + 2) * d - (a + 3)) * d * d + 1
+
+    def far(d):  # 1 < |d| < 2
+        return ((a * d - 5 * a) * d + 8 * a) * d - 4 * a
+
+    return far(t + 1), near(t), near(1 - t), far(2 - t)
+
+
+def _split(xy):
+    """Pixel coordinates -> (integer tap-0 index, fractional part) per axis."""
+    u = xy - 0.5  # index space: pixel centres at integers
+    i0 = jnp.floor(u)
+    return i0.astype(jnp.int32), (u - i0).astype(xy.dtype)
+
+
+def _nearest(image, xy):
+    h, w = image.shape[1:3]
+    ix = jnp.clip(jnp.floor(xy[..., 0]).astype(jnp.int32), 0, w - 1)
+    iy = jnp.clip(jnp.floor(xy[..., 1]).astype(jnp.int32), 0, h - 1)
+    return _gather(image, iy, ix)
+
+
+def _bilinear(image, xy):
+    h, w = image.shape[1:3]
+    i0, t = _split(xy)
+    x0, y0 = i0[..., 0], i0[..., 1]
+    tx, ty = t[..., 0:1].astype(image.dtype), t[..., 1:2].astype(image.dtype)
+    xa, xb = jnp.clip(x0, 0, w - 1), jnp.clip(x0 + 1, 0, w - 1)
+    ya, yb = jnp.clip(y0, 0, h - 1), jnp.clip(y0 + 1, 0, h - 1)
+    top = _gather(image, ya, xa) * (1 - tx) + _gather(image, ya, xb) * tx
+    bot = _gather(image, yb, xa) * (1 - tx) + _gather(image, yb, xb) * tx
+    return top * (1 - ty) + bot * ty
+
+
+def _bicubic(image, xy, a):
+    """The 16-tap separable Keys kernel, x first then y (PyTorch's order)."""
+    h, w = image.shape[1:3]
+    i0, t = _split(xy)
+    wx = keys_weights(t[..., 0:1].astype(image.dtype), a)
+    wy = keys_weights(t[..., 1:2].astype(image.dtype), a)
+    xs = [jnp.clip(i0[..., 0] + k, 0, w - 1) for k in (-1, 0, 1, 2)]
+    out = 0
+    for ky, wyk in zip((-1, 0, 1, 2), wy):
+        yk = jnp.clip(i0[..., 1] + ky, 0, h - 1)
+        row = sum(_gather(image, yk, xk) * wxk for xk, wxk in zip(xs, wx))
+        out = out + row * wyk
+    return out
+
+
+def _three_fetches(i0, t, a, dtype):
+    """Per axis: the 4 Keys taps as 3 linear fetches (positions, weights).
+
+    The two inner taps have weights of one sign summing to w1 + w2 > 0, so one
+    linear fetch between them at offset w2 / (w1 + w2) reproduces both; the
+    outer taps are fetched at their pixel centres.
+    """
+    w0, w1, w2, w3 = keys_weights(t.astype(dtype), a)
+    w12 = w1 + w2
+    base = i0.astype(dtype) + 0.5  # centre of tap 0, in pixel coordinates
+    pos = (base - 1, base + w2 / w12, base + 2)
+    return pos, (w0, w12, w3)
+
+
+def _bicubic9(image, xy, a):
+    i0, t = _split(xy)
+    px, wx = _three_fetches(i0[..., 0], t[..., 0], a, image.dtype)
+    py, wy = _three_fetches(i0[..., 1], t[..., 1], a, image.dtype)
+    out = 0
+    for y, wyk in zip(py, wy):
+        for x, wxk in zip(px, wx):
+            out = out + _bilinear(image, jnp.stack([x, y], -1)) * (wxk * wyk)[..., None]
+    return out
+
+
+def _bicubic5(image, xy, a):
+    """Unreal Engine 4's 5-fetch approximation: the 9-fetch kernel without its
+    four corner fetches, renormalized so that the weights sum to one."""
+    i0, t = _split(xy)
+    px, wx = _three_fetches(i0[..., 0], t[..., 0], a, image.dtype)
+    py, wy = _three_fetches(i0[..., 1], t[..., 1], a, image.dtype)
+    taps = ((1, 0), (0, 1), (1, 1), (2, 1), (1, 2))  # (x fetch, y fetch)
+    out, total = 0, 0
+    for jx, jy in taps:
+        wk = wx[jx] * wy[jy]
+        out = out + _bilinear(image, jnp.stack([px[jx], py[jy]], -1)) * wk[..., None]
+        total = total + wk
+    return out / total[..., None]
+
+
+def sample(image, xy, method="bilinear", a=PYTORCH_A, return_mask=False):
+    """Sample ``image [B,H,W,C]`` at pixel coordinates ``xy [B,Ho,Wo,2]``.
+
+    ``method``: ``nearest`` (the pixel containing the point), ``bilinear``,
+    ``bicubic`` (16 taps, Keys parameter ``a``), ``catmull_rom`` (bicubic with
+    a=-0.5), ``bicubic9`` (the same 16-tap kernel from 9 bilinear fetches),
+    ``bicubic5`` (5 bilinear fetches, corner taps dropped). ``a`` is used by
+    the three cubic methods other than ``catmull_rom``.
+
+    Returns ``[B,Ho,Wo,C]`` in the image's dtype, and with ``return_mask`` also
+    ``inside_mask(xy, H, W)``.
+    """
+    _check(image, xy)
+    if method == "nearest":
+        out = _nearest(image, xy)
+    elif method == "bilinear":
+        out = _bilinear(image, xy)
+    elif method == "bicubic":
+        out = _bicubic(image, xy, a)
+    elif method == "catmull_rom":
+        out = _bicubic(image, xy, CATMULL_ROM_A)
+    elif method == "bicubic9":
+        out = _bicubic9(image, xy, a)
+    elif method == "bicubic5":
+        out = _bicubic5(image, xy, a)
+    else:
+        raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
+    if return_mask:
+        return out, inside_mask(xy, *image.shape[1:3])
+    return out
+
+
+def inside_mask(xy, height, width):
+    """``[B,Ho,Wo,1]`` bool: True where ``xy`` lies in the image ``[0,W]x[0,H]``."""
+    x, y = xy[..., 0:1], xy[..., 1:2]
+    return (x >= 0) & (x <= width) & (y >= 0) & (y <= height)
+
+
+def pixel_grid(batch, height, width, dtype=jnp.float32):
+    """Centres of the pixels of a ``height x width`` image, ``[B,H,W,2]`` (x, y)."""
+    x = jnp.arange(width, dtype=dtype) + 0.5
+    y = jnp.arange(height, dtype=dtype) + 0.5
+    g = jnp.stack(jnp.meshgrid(x, y, indexing="xy"), -1)
+    return jnp.broadcast_to(g, (batch, height, width, 2))
+
+
+def grid_sample(image, grid, method="bilinear", a=PYTORCH_A, align_corners=False):
+    """``sample`` on PyTorch-style normalized grids ``[B,Ho,Wo,2]`` in [-1, 1].
+
+    ``grid[..., 0]`` is x and ``grid[..., 1]`` is y as in
+    ``torch.nn.functional.grid_sample``; borders behave like its
+    ``padding_mode='border'`` (NHWC here, NCHW there).
+    """
+    _check(image, grid)
+    h, w = image.shape[1:3]
+    size = jnp.asarray([w, h], dtype=grid.dtype)
+    if align_corners:
+        xy = (grid + 1) / 2 * (size - 1) + 0.5
+    else:
+        xy = ((grid + 1) * size) / 2
+    return sample(image, xy, method=method, a=a)

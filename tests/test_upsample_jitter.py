@@ -1,0 +1,142 @@
+"""Zero-up-sampling, jitter-aligned up-sampling, motion dilation, jitter sequences, colour."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jtus import sampling
+
+
+@pytest.mark.parametrize("factor", [2, 4])
+def test_zero_upsample_places_samples_under_jitter(rng, factor):
+    x = rng.uniform(0.1, 1, size=(2, 3, 5, 4)).astype(np.float32)
+    jitter = np.array([[0.1, 0.9], [0.6, 0.3]], np.float32)
+    out = np.asarray(sampling.zero_upsample(jnp.asarray(x), jnp.asarray(jitter), factor))
+    assert out.shape == (2, 3 * factor, 5 * factor, 4)
+    for b in range(2):
+        ox, oy = (jitter[b] * factor).astype(int)
+        np.testing.assert_array_equal(out[b, oy::factor, ox::factor], x[b])
+        mask = np.ones(out.shape[1:3], bool)
+        mask[oy::factor, ox::factor] = False
+        assert np.all(out[b][mask] == 0)
+
+
+@pytest.mark.parametrize("method", ["bilinear", "bicubic"])
+@pytest.mark.parametrize("factor", [2, 4])
+def test_jau_reproduces_samples_at_their_positions(rng, method, factor):
+    """An HR pixel whose centre is the sample position gets the LR sample exactly."""
+    x = rng.normal(size=(1, 4, 6, 3)).astype(np.float32)
+    cell = np.array([1, factor - 1])
+    jitter = ((cell + 0.5) / factor)[None].astype(np.float32)
+    out = np.asarray(sampling.jitter_aligned_upsample(jnp.asarray(x), jnp.asarray(jitter),
+                                                      factor, method))
+    np.testing.assert_allclose(out[0, cell[1]::factor, cell[0]::factor], x[0], atol=1e-6)
+
+
+def test_jau_of_linear_ramp_is_the_ramp(x64):
+    """A linear function sampled at jittered positions is rebuilt exactly by bilinear JAU
+    away from the borders (it would be shifted by the jitter without the alignment)."""
+    f, jit = 4, np.array([[0.3, 0.8]])
+    h, w = 6, 7
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    ramp = lambda x, y: 0.4 * x - 0.25 * y + 1.0  # noqa: E731
+    lr = ramp(xx + jit[0, 0], yy + jit[0, 1])[None, :, :, None]  # value at the sample position
+    out = np.asarray(sampling.jitter_aligned_upsample(jnp.asarray(lr), jnp.asarray(jit), f))
+    Y, X = np.mgrid[0:h * f, 0:w * f]
+    exact = ramp((X + 0.5) / f, (Y + 0.5) / f)
+    np.testing.assert_allclose(out[0, f:-f, f:-f, 0], exact[f:-f, f:-f], atol=1e-12)
+
+
+def test_dilate_motion_takes_nearest_neighbour():
+    depth = np.full((1, 4, 4, 1), 0.9, np.float32)
+    depth[0, 1, 2] = 0.1  # a near pixel
+    motion = np.zeros((1, 4, 4, 2), np.float32)
+    motion[0, 1, 2] = [3.0, -2.0]
+    out = np.asarray(sampling.dilate_motion(jnp.asarray(motion), jnp.asarray(depth)))
+    expect = np.zeros_like(motion)
+    expect[0, 0:3, 1:4] = [3.0, -2.0]
+    np.testing.assert_array_equal(out, expect)
+
+
+def test_dilate_motion_ties_keep_centre(rng):
+    motion = rng.normal(size=(1, 5, 5, 2)).astype(np.float32)
+    depth = np.full((1, 5, 5, 1), 0.5, np.float32)
+    out = sampling.dilate_motion(jnp.asarray(motion), jnp.asarray(depth))
+    np.testing.assert_array_equal(out, motion)
+
+
+def test_upsample_bad_inputs():
+    with pytest.raises(ValueError, match="factor"):
+        sampling.pixel_unshuffle(jnp.zeros((1, 6, 6, 1)), 4)
+    with pytest.raises(ValueError, match="jitter"):
+        sampling.zero_upsample(jnp.zeros((2, 3, 3, 1)), jnp.zeros((1, 2)), 2)
+    with pytest.raises(ValueError, match="factor"):
+        sampling.upsample(jnp.zeros((1, 3, 3, 1)), 2.5)
+
+
+def test_van_der_corput_and_halton():
+    assert [sampling.van_der_corput(i, 2) for i in range(1, 5)] == [0.5, 0.25, 0.75, 0.125]
+    np.testing.assert_allclose([sampling.van_der_corput(i, 3) for i in range(1, 5)],
+                               [1 / 3, 2 / 3, 1 / 9, 4 / 9])
+    h = sampling.halton(8)
+    np.testing.assert_allclose(h[0], [0.5, 1 / 3])
+    assert np.all((h >= 0) & (h < 1))
+
+
+def _neighbours(a, b):
+    return max(abs(a[0] - b[0]), abs(a[1] - b[1])) <= 1
+
+
+def test_thesis_4x4_pattern():
+    seq = sampling.thesis_4x4()
+    assert seq.shape == (16, 2)
+    cells = seq * 4 - 0.5
+    np.testing.assert_array_equal(cells, np.round(cells))  # at HR-pixel centres
+    cells = [tuple(c) for c in cells.astype(int)]
+    assert sorted(cells) == [(x, y) for x in range(4) for y in range(4)]
+    for t in range(16):  # cyclically: the sequence repeats
+        assert not _neighbours(cells[t], cells[(t + 1) % 16]), t
+
+
+def test_thesis_2x2_pattern():
+    seq = sampling.thesis_2x2()
+    assert seq.shape == (16, 2)
+    halton = sampling.halton(4, start=2)
+    cells = [(0, 0), (1, 0), (0, 1), (1, 1)]
+    for t in range(16):
+        cell = np.floor(seq[t] * 2)
+        assert tuple(cell.astype(int)) == cells[t % 4]  # hourglass order
+        np.testing.assert_allclose(seq[t] * 2 - cell, halton[t // 4])
+    assert len({tuple(p) for p in seq}) == 16
+
+
+@pytest.mark.parametrize("factor,n", [(2, 32), (4, 128), (1.5, 18)])
+def test_fsr2_length(factor, n):
+    seq = sampling.fsr2(factor)
+    assert seq.shape == (n, 2)
+    np.testing.assert_allclose(seq, sampling.halton(n))
+    assert len({tuple(p) for p in seq}) == n
+
+
+def test_jitter_sequence_names():
+    np.testing.assert_array_equal(sampling.jitter_sequence("thesis", 4), sampling.thesis_4x4())
+    with pytest.raises(ValueError, match="factor"):
+        sampling.jitter_sequence("thesis", 3)
+    with pytest.raises(ValueError, match="name"):
+        sampling.jitter_sequence("sobol", 2)
+
+
+@pytest.mark.parametrize("fwd,inv", [(sampling.rgb_to_ycocg, sampling.ycocg_to_rgb),
+                                     (sampling.rgb_to_ycbcr, sampling.ycbcr_to_rgb)])
+def test_colour_round_trip(x64, rng, fwd, inv):
+    rgb = jnp.asarray(rng.uniform(size=(3, 5, 3)))
+    np.testing.assert_allclose(inv(fwd(rgb)), rgb, atol=1e-14)
+
+
+def test_colour_known_values():
+    white = jnp.ones((1, 3))
+    np.testing.assert_allclose(sampling.rgb_to_ycocg(white), [[1, 0, 0]], atol=1e-7)
+    np.testing.assert_allclose(sampling.rgb_to_ycbcr(white), [[1, 0.5, 0.5]], atol=1e-6)
+    red = jnp.asarray([[1.0, 0, 0]])
+    np.testing.assert_allclose(sampling.rgb_to_ycocg(red), [[0.25, 0.5, -0.25]], atol=1e-7)

@@ -1,0 +1,153 @@
+"""Properties of the hand-written warps: exactness, partition of unity, polynomial
+reproduction, the 9- and 5-fetch kernels, and gradients (float64 check_grads)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from jax.test_util import check_grads
+
+from jtus import sampling
+
+ALL = sampling.METHODS
+CUBIC = ("bicubic", "catmull_rom", "bicubic9", "bicubic5")
+
+
+def _image(seed, b=1, h=9, w=11, c=3, dtype=np.float32):
+    return jnp.asarray(np.random.default_rng(seed).normal(size=(b, h, w, c)).astype(dtype))
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), method=st.sampled_from(ALL),
+       a=st.sampled_from([-0.5, -0.75]))
+def test_zero_motion_is_identity(seed, method, a):
+    img = _image(seed)
+    xy = sampling.pixel_grid(1, 9, 11)
+    np.testing.assert_array_equal(np.asarray(sampling.sample(img, xy, method, a=a)), img)
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), method=st.sampled_from(ALL),
+       dx=st.integers(-2, 2), dy=st.integers(-2, 2))
+def test_integer_shift_exact_away_from_borders(seed, method, dx, dy):
+    img = _image(seed, h=12, w=12)
+    xy = sampling.pixel_grid(1, 12, 12) + jnp.asarray([dx, dy], jnp.float32)
+    out = np.asarray(sampling.sample(img, xy, method))
+    # Interior: output pixel (i, j) whose taps (up to 2 away) stay in the image.
+    inner = slice(4, 8)
+    np.testing.assert_array_equal(out[:, inner, inner],
+                                  np.asarray(img)[:, 4 + dy:8 + dy, 4 + dx:8 + dx])
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), method=st.sampled_from(ALL),
+       value=st.floats(-4, 4), a=st.sampled_from([-0.5, -0.75]))
+def test_constant_image_stays_constant(seed, method, value, a):
+    with jax.enable_x64(True):
+        img = jnp.full((1, 7, 6, 2), value, jnp.float64)
+        xy = jnp.asarray(np.random.default_rng(seed).uniform(-5, 12, size=(1, 8, 8, 2)))
+        out = np.asarray(sampling.sample(img, xy, method, a=a))
+    np.testing.assert_allclose(out, value, rtol=0, atol=1e-13 * max(1.0, abs(value)))
+
+
+def _quadratic_image(h=16, w=16):
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)  # index coordinates
+    return 0.3 * xx**2 - 1.1 * xx * yy + 0.7 * yy**2 + 2 * xx - yy + 0.5
+
+
+@pytest.mark.parametrize("method", ["catmull_rom", "bicubic9"])
+def test_catmull_rom_reproduces_quadratics(x64, method):
+    q = _quadratic_image()
+    xy = np.random.default_rng(3).uniform(4, 12, size=(1, 20, 20, 2))
+    out = np.asarray(sampling.sample(jnp.asarray(q[None, :, :, None]), jnp.asarray(xy),
+                                     method, a=-0.5))[0, ..., 0]
+    u, v = xy[0, ..., 0] - 0.5, xy[0, ..., 1] - 0.5
+    exact = 0.3 * u**2 - 1.1 * u * v + 0.7 * v**2 + 2 * u - v + 0.5
+    np.testing.assert_allclose(out, exact, rtol=0, atol=1e-11)
+
+
+def test_keys_075_does_not_reproduce_quadratics(x64):
+    q = _quadratic_image()
+    xy = np.random.default_rng(3).uniform(4, 12, size=(1, 20, 20, 2))
+    out = np.asarray(sampling.sample(jnp.asarray(q[None, :, :, None]), jnp.asarray(xy),
+                                     "bicubic", a=-0.75))[0, ..., 0]
+    u, v = xy[0, ..., 0] - 0.5, xy[0, ..., 1] - 0.5
+    exact = 0.3 * u**2 - 1.1 * u * v + 0.7 * v**2 + 2 * u - v + 0.5
+    assert np.abs(out - exact).max() > 1e-2
+
+
+@pytest.mark.parametrize("a", [-0.5, -0.75])
+def test_bicubic9_equals_16_taps(x64, a):
+    img = jnp.asarray(np.random.default_rng(0).uniform(size=(2, 10, 13, 3)))
+    xy = jnp.asarray(np.random.default_rng(1).uniform(-3, 16, size=(2, 15, 17, 2)))
+    ref = sampling.sample(img, xy, "bicubic", a=a)
+    np.testing.assert_allclose(sampling.sample(img, xy, "bicubic9", a=a), ref, rtol=0, atol=1e-14)
+    img32, xy32 = img.astype(jnp.float32), xy.astype(jnp.float32)
+    np.testing.assert_allclose(sampling.sample(img32, xy32, "bicubic9", a=a),
+                               sampling.sample(img32, xy32, "bicubic", a=a), rtol=0, atol=2e-6)
+
+
+@pytest.mark.parametrize("a,bound", [(-0.5, 0.016), (-0.75, 0.036)])
+def test_bicubic5_error_is_bounded(x64, a, bound):
+    """The 5 fetches drop the 4 corner weights, each a product of two negative
+    outer-lobe weights, so they sum to at most (2 * |a| / 8)^2 (at t = 1/2);
+    after renormalization the error on a [0,1] image stays below about that."""
+    img = jnp.asarray(np.random.default_rng(0).uniform(size=(1, 32, 32, 3)))
+    xy = jnp.asarray(np.random.default_rng(1).uniform(2, 30, size=(1, 64, 64, 2)))
+    err = np.abs(np.asarray(sampling.sample(img, xy, "bicubic5", a=a)
+                            - sampling.sample(img, xy, "bicubic", a=a)))
+    assert err.max() <= bound
+    assert err.max() > bound / 4  # the approximation does differ
+    # At pixel centres (t = 0) the outer weights vanish and it is exact.
+    centres = sampling.pixel_grid(1, 32, 32, jnp.float64)
+    np.testing.assert_array_equal(sampling.sample(img, centres, "bicubic5", a=a), img)
+
+
+def _interior_coords(seed, shape):
+    """Coordinates whose fractional parts stay in [0.1, 0.9]: away from tap boundaries."""
+    rng = np.random.default_rng(seed)
+    base = rng.integers(1, 6, size=shape)
+    return jnp.asarray(base + 0.5 + rng.uniform(0.1, 0.9, size=shape))
+
+
+@pytest.mark.parametrize("method", ALL[1:])  # nearest is piecewise constant in xy
+def test_check_grads_float64(x64, method):
+    img = jnp.asarray(np.random.default_rng(0).normal(size=(1, 7, 8, 2)))
+    xy = _interior_coords(1, (1, 3, 4, 2))
+    check_grads(lambda im: sampling.sample(im, xy, method), (img,), order=2, modes=("fwd", "rev"))
+    check_grads(lambda p: sampling.sample(img, p, method), (xy,), order=2, modes=("fwd", "rev"),
+                eps=1e-6)
+
+
+@pytest.mark.parametrize("method", ALL[1:])
+def test_coordinate_gradient_nonzero_at_pixel_centres(x64, method):
+    img = jnp.asarray(np.random.default_rng(0).normal(size=(1, 7, 8, 1)))
+    xy = sampling.pixel_grid(1, 7, 8, jnp.float64)
+    g = jax.grad(lambda p: sampling.sample(img, p, method)[0, 2:5, 2:6].sum())(xy)
+    g = np.asarray(g)[0, 2:5, 2:6]
+    assert np.all(np.abs(g).sum(-1) > 1e-3)
+
+
+def test_nearest_picks_containing_pixel():
+    img = jnp.arange(12, dtype=jnp.float32).reshape(1, 3, 4, 1)
+    xy = jnp.asarray([[[[0.0, 0.0], [0.99, 2.99], [3.5, 1.0], [9.0, -4.0]]]], jnp.float32)
+    out = np.asarray(sampling.sample(img, xy, "nearest"))[0, 0, :, 0]
+    np.testing.assert_array_equal(out, [0, 8, 7, 3])
+
+
+def test_inside_mask():
+    xy = jnp.asarray([[[[0.0, 0.0], [4.0, 3.0], [-0.01, 1.0], [2.0, 3.01]]]])
+    _, mask = sampling.sample(jnp.zeros((1, 3, 4, 1)), xy, "bilinear", return_mask=True)
+    np.testing.assert_array_equal(np.asarray(mask)[0, 0, :, 0], [True, True, False, False])
+
+
+def test_bad_input_errors():
+    img = jnp.zeros((1, 4, 4, 3))
+    with pytest.raises(ValueError, match="method"):
+        sampling.sample(img, jnp.zeros((1, 2, 2, 2)), "lanczos")
+    with pytest.raises(ValueError, match="xy"):
+        sampling.sample(img, jnp.zeros((1, 2, 2, 3)))
+    with pytest.raises(ValueError, match="image"):
+        sampling.sample(jnp.zeros((4, 4, 3)), jnp.zeros((1, 2, 2, 2)))
