@@ -1,0 +1,83 @@
+"""Training losses (thesis sec. 4.3.3).
+
+Every loss has the signature the rollout helper calls,
+``loss(out, target, prev_out, prev_target, has_prev, frame) -> scalar``, with images
+``[B,H,W,3]``. Temporal terms compare the current error ``x = out - target`` with
+the previous frame's error warped to the current frame,
+``y = f_prev(prev_out) - f_prev(prev_target) = f_prev(prev_out - prev_target)``,
+where ``f_prev`` reads the previous image at ``P + f * up(motion)(P)`` (the
+reprojection of ``docs/conventions.md``). Where there is no previous frame (the
+start of a video, ``has_prev`` False) or the reprojection leaves the image, ``y = 0``.
+
+- ``l1``, ``mse``;
+- ``salvi`` (eq. 43): ``mean(x^2) + mean((x - y)^2)``;
+- ``st`` with θ (eq. 51-52): ``mean(x^2 + y^2 - 2θxy)``;
+- ``st-linear`` with θ (eq. 54-55): ``mean(|x| + |y| + θ(|x - y| - |x| - |y|))``:
+  θ=0 is the L1 of the current and the previous error, θ=1 the temporal term
+  ``|x - y|``;
+- ``ssim``: ``1 - SSIM``.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax.numpy as jnp
+
+from jtus import metrics, sampling
+
+NAMES = ("l1", "mse", "salvi", "st", "st-linear", "ssim")
+
+
+def warp_previous(prev, motion, factor, method="bilinear"):
+    """``prev [B,H,W,C]`` read at the current frame's reprojected positions, and the
+    mask ``[B,H,W,1]`` of positions inside the previous frame. ``motion`` is the LR
+    backward motion ``[B,h,w,2]``."""
+    b, hh, ww, _ = prev.shape
+    xy = sampling.pixel_grid(b, hh, ww, prev.dtype) + factor * sampling.upsample(
+        motion.astype(prev.dtype), factor)
+    return sampling.sample(prev, xy, method, return_mask=True)
+
+
+def errors(out, target, prev_out, prev_target, has_prev, frame, factor, method="bilinear"):
+    """The current error ``x`` and the warped previous error ``y`` (0 where none)."""
+    x = out - target
+    y, inside = warp_previous(prev_out - prev_target, frame.motion, factor, method)
+    return x, jnp.where(inside & has_prev, y, 0.0)
+
+
+def st_linear_terms(x, y, theta):
+    return jnp.abs(x) + jnp.abs(y) + theta * (jnp.abs(x - y) - jnp.abs(x) - jnp.abs(y))
+
+
+def _l1(out, target, *_):
+    return jnp.mean(jnp.abs(out - target))
+
+
+def _mse(out, target, *_):
+    return jnp.mean(jnp.square(out - target))
+
+
+def _ssim(out, target, *_):
+    return 1.0 - jnp.mean(metrics.ssim(out, target))
+
+
+def _temporal(kind, theta, factor, method, out, target, prev_out, prev_target, has_prev,
+              frame):
+    x, y = errors(out, target, prev_out, prev_target, has_prev, frame, factor, method)
+    if kind == "salvi":
+        return jnp.mean(x * x) + jnp.mean(jnp.square(x - y))
+    if kind == "st":
+        return jnp.mean(x * x + y * y - 2 * theta * x * y)
+    return jnp.mean(st_linear_terms(x, y, theta))
+
+
+def make(name, factor, theta=0.5, method="bilinear"):
+    """The loss ``name`` (one of ``NAMES``) for up-sampling factor ``factor``."""
+    if name in ("l1", "mse", "ssim"):
+        return {"l1": _l1, "mse": _mse, "ssim": _ssim}[name]
+    if name in ("salvi", "st", "st-linear"):
+        if not 0.0 <= theta <= 1.0:
+            raise ValueError(f"theta: expected a value in [0, 1], got {theta}")
+        return functools.partial(_temporal, name, theta, factor, method)
+    raise ValueError(f"loss: expected one of {NAMES}, got {name!r}")

@@ -1,0 +1,291 @@
+"""DLCTUS: Deep Learning Controlled Temporal Upsampling (thesis sec. 4.1, eq. 44-46).
+
+A step, for up-sampling factor f and an HR frame of ``H x W = f*h x f*w``:
+
+1. input up-sampling: RGB and linear depth zero-up-sampled (``zero [B,H,W,4]``);
+   RGB with a fourth channel of ones jitter-aligned up-sampled, bilinear (``jau``);
+2. history reprojection: motion vectors up-sampled bilinearly (optionally 3x3-dilated
+   first), the history ``[B,H,W,4]`` read at ``P + f*mv`` with the configured warp,
+   and replaced by ``jau`` where that falls outside the previous frame;
+3. the network on ``concat(zero, hist)`` (8 channels): 4x4 stride-4 convolution to
+   32 channels, four residual blocks (3x3 edge-padded conv, ReLU, 3x3 conv, add),
+   pixel shuffle by 4 to 2 channels ``o``, clamped to [0,1];
+4. output construction: ``out = jau * o1 + hist * (1 - o1)`` on all four channels,
+   the accumulation channel multiplied by ``o2``, all clamped to [0,1]. ``out`` is the
+   new history; its RGB is the frame's output.
+
+Formulations (thesis sec. 4.4.4), equal up to float rounding: ``standard``; ``opt1``
+(no pixel-shuffle layer: output construction runs on space-to-depth tensors and one
+shuffle writes the result); ``opt2`` (the 4x4 stride-4 convolution as space-to-depth
+followed by a 1x1 convolution, i.e. a matmul).
+
+Without the accumulation buffer the history's fourth channel is held at 1: the
+network still sees 8 channels and ``o2`` is unused.
+
+Preparation and output construction run in float32; the network in the configured
+compute dtype; the carried history is always float32 (all three are float64 when
+``dtype="float64"``, for references and gradient checks).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jtus import sampling
+from jtus.data.conventions import linearize_depth
+from jtus.frame import Frame
+from jtus.models import layers
+from jtus.models.base import Model, carry_dtype, compute_dtype
+
+FORMULATIONS = ("standard", "opt1", "opt2")
+DOWN = 4  # the network works at 1/4 of the HR resolution
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    factor: int = 4
+    near: float = 0.1
+    far: float = 100.0
+    warp: str = "bicubic"        # any jtus.sampling method
+    warp_a: float = -0.75        # Keys parameter of the cubic warps (PyTorch's)
+    accumulation: bool = True
+    dilation: bool = False
+    dtype: str = "float32"       # network compute dtype; the history stays float32
+    formulation: str = "standard"
+    channels: int = 32
+    blocks: int = 4
+
+    def __post_init__(self):
+        if self.factor not in (2, 4):
+            raise ValueError(f"factor: expected 2 or 4, got {self.factor}")
+        if not 0 < self.near < self.far:
+            raise ValueError(f"near/far: expected 0 < near < far, got {self.near}, {self.far}")
+        if self.warp not in sampling.METHODS:
+            raise ValueError(f"warp: expected one of {sampling.METHODS}, got {self.warp!r}")
+        if self.formulation not in FORMULATIONS:
+            raise ValueError(f"formulation: expected one of {FORMULATIONS}, "
+                             f"got {self.formulation!r}")
+        if self.channels != 2 * DOWN * DOWN:
+            raise ValueError(f"channels: the pixel shuffle to 2 outputs needs "
+                             f"{2 * DOWN * DOWN}, got {self.channels}")
+        compute_dtype(self.dtype)
+
+
+class State(NamedTuple):
+    history: jax.Array  # [B,H,W,4] float32: RGB and accumulation
+
+
+def init(key, config: Config = Config()):
+    """Parameters with PyTorch's default initialization (kernels HWIO)."""
+    keys = jax.random.split(key, 1 + 2 * config.blocks)
+    c = config.channels
+    params = {"down": layers.torch_uniform_init(keys[0], (DOWN, DOWN, 8, c))}
+    for i in range(config.blocks):
+        params[f"block{i + 1}"] = {
+            "conv1": layers.torch_uniform_init(keys[1 + 2 * i], (3, 3, c, c)),
+            "conv2": layers.torch_uniform_init(keys[2 + 2 * i], (3, 3, c, c)),
+        }
+    return params
+
+
+def _cast(frame, config):
+    dt = carry_dtype(config.dtype)
+    return tuple(x.astype(dt) for x in (frame.color, frame.depth, frame.motion, frame.jitter))
+
+
+def _jau(config, color, jitter):
+    ones = jnp.ones(color.shape[:-1] + (1,), color.dtype)
+    return sampling.jitter_aligned_upsample(jnp.concatenate([color, ones], -1), jitter,
+                                            config.factor, "bilinear")
+
+
+def init_state(frame: Frame, config: Config = Config()) -> State:
+    """The history of a sequence's first frame: its jitter-aligned input, accumulation 1."""
+    color, _, _, jitter = _cast(frame, config)
+    return State(_jau(config, color, jitter))
+
+
+def _trunk(params, h, config):
+    for i in range(config.blocks):
+        blk = params[f"block{i + 1}"]
+        r = jax.nn.relu(layers.conv_edge(h, blk["conv1"]["kernel"], blk["conv1"]["bias"]))
+        h = h + layers.conv_edge(r, blk["conv2"]["kernel"], blk["conv2"]["bias"])
+    return h
+
+
+def _down(params, x, config):
+    k, b = params["down"]["kernel"], params["down"]["bias"]
+    if config.formulation == "opt2":
+        xs = sampling.pixel_unshuffle(x, DOWN)  # channel c*16 + dy*4 + dx
+        k1 = k.transpose(2, 0, 1, 3).reshape(-1, k.shape[-1]).astype(x.dtype)
+        return xs @ k1 + b.astype(x.dtype)
+    return layers.conv(x, k, b, stride=DOWN, padding="VALID")
+
+
+def network(params, x, config: Config):
+    """``x [B,H,W,8]`` -> ``[B,H/4,W/4,32]`` in the compute dtype (before the shuffle)."""
+    dt = compute_dtype(config.dtype)
+    params = jax.tree_util.tree_map(lambda p: p.astype(dt), params)
+    return _trunk(params, _down(params, x.astype(dt), config), config)
+
+
+def _construct(jau, hist, o1, o2, config, axis):
+    """Eq. 44-45. ``axis`` is the axis of the 4 history channels (RGB, accumulation);
+    ``o1``, ``o2`` broadcast against ``jau`` with size 1 on it."""
+    out = jau * o1 + hist * (1 - o1)
+    if config.accumulation:
+        rgb, acc = jnp.split(out, [3], axis=axis)
+        out = jnp.concatenate([rgb, acc * o2], axis=axis)
+    return jnp.clip(out, 0.0, 1.0)
+
+
+def _output(jau, hist, net, config):
+    net = jnp.clip(net.astype(jau.dtype), 0.0, 1.0)
+    if config.formulation == "opt1":
+        # Stay in space-to-depth layout [B,H/4,W/4,channel,sub-pixel]; shuffle once.
+        b, hh, ww, _ = net.shape
+        s = DOWN * DOWN
+        o = net.reshape(b, hh, ww, 2, s)
+        j = sampling.pixel_unshuffle(jau, DOWN).reshape(b, hh, ww, 4, s)
+        hs = sampling.pixel_unshuffle(hist, DOWN).reshape(b, hh, ww, 4, s)
+        out = _construct(j, hs, o[..., 0:1, :], o[..., 1:2, :], config, axis=-2)
+        return sampling.pixel_shuffle(out.reshape(b, hh, ww, 4 * s), DOWN)
+    o = sampling.pixel_shuffle(net, DOWN)
+    return _construct(jau, hist, o[..., 0:1], o[..., 1:2], config, axis=-1)
+
+
+def prepare(state: State, frame: Frame, config: Config):
+    """Stages 1-2: ``(net_input [B,H,W,8], jau [B,H,W,4], hist [B,H,W,4])``, float32."""
+    f = config.factor
+    color, depth, motion, jitter = _cast(frame, config)
+    b, h, w, _ = color.shape
+    zero = sampling.zero_upsample(
+        jnp.concatenate([color, linearize_depth(depth, config.near, config.far)], -1),
+        jitter, f)
+    jau = _jau(config, color, jitter)
+    history = state.history
+    if frame.reset is not None:
+        history = jnp.where(frame.reset[:, None, None, None], jau, history)
+    if not config.accumulation:
+        history = history.at[..., 3].set(1.0)
+    mv = sampling.dilate_motion(motion, depth) if config.dilation else motion
+    xy = sampling.pixel_grid(b, h * f, w * f, mv.dtype) + f * sampling.upsample(mv, f)
+    rep, inside = sampling.sample(history, xy, config.warp, a=config.warp_a, return_mask=True)
+    hist = jnp.where(inside, rep, jau)
+    return jnp.concatenate([zero, hist], -1), jau, hist
+
+
+def step(params, state: State, frame: Frame, config: Config = Config()):
+    net_in, jau, hist = prepare(state, frame, config)
+    out = _output(jau, hist, network(params, net_in, config), config)
+    return out[..., :3], State(out)
+
+
+def make(config: Config = Config()) -> Model:
+    return Model(init=lambda key: init(key, config),
+                 init_state=lambda frame: init_state(frame, config),
+                 step=lambda params, state, frame: step(params, state, frame, config),
+                 config=config)
+
+
+# ---------------------------------------------------------------- PyTorch interop
+
+def _torch_names(blocks=4):
+    """(torch key, path in params) for the thesis's PyTorch module layout."""
+    names = [("down.0.weight", ("down", "kernel")), ("down.0.bias", ("down", "bias"))]
+    for i in range(1, blocks + 1):
+        for tidx, conv in ((0, "conv1"), (2, "conv2")):
+            names.append((f"cnn{i}.{tidx}.weight", (f"block{i}", conv, "kernel")))
+            names.append((f"cnn{i}.{tidx}.bias", (f"block{i}", conv, "bias")))
+    return names
+
+
+def _to_numpy(v):
+    if hasattr(v, "detach"):  # a torch tensor, converted without importing torch here
+        v = v.detach().cpu().numpy()
+    return np.asarray(v)
+
+
+def params_from_torch(state_dict, config: Config = Config()):
+    """Params from a state_dict named like the thesis's model (``down.0.weight``,
+    ``cnn1.0.weight``, ... ``cnn4.2.bias``; kernels OIHW). Tensors or arrays."""
+    names = _torch_names(config.blocks)
+    expected = {k for k, _ in names}
+    got = set(state_dict)
+    if got != expected:
+        missing, extra = sorted(expected - got), sorted(got - expected)
+        raise ValueError(f"state_dict: keys do not match DLCTUS; missing {missing}, "
+                         f"unexpected {extra}")
+    ref = init(jax.random.PRNGKey(0), config)
+    params = jax.tree_util.tree_map(lambda x: None, ref)
+    for key, path in names:
+        v = _to_numpy(state_dict[key]).astype(np.float32)
+        if v.ndim == 4:
+            v = v.transpose(2, 3, 1, 0)  # OIHW -> HWIO
+        node, want = params, ref
+        for p in path[:-1]:
+            node, want = node[p], want[p]
+        if v.shape != want[path[-1]].shape:
+            raise ValueError(f"state_dict[{key!r}]: expected shape "
+                             f"{_torch_shape(want[path[-1]].shape)}, got {_torch_shape(v.shape)}")
+        node[path[-1]] = jnp.asarray(v)
+    return params
+
+
+def _torch_shape(hwio):
+    return tuple(hwio[i] for i in (3, 2, 0, 1)) if len(hwio) == 4 else tuple(hwio)
+
+
+def params_to_torch(params, config: Config = Config()):
+    """The inverse of ``params_from_torch``: an ordered dict of torch tensors (OIHW)."""
+    import collections
+
+    import torch  # only when asked: jtus does not need torch at runtime
+
+    out = collections.OrderedDict()
+    for key, path in _torch_names(config.blocks):
+        v = params
+        for p in path:
+            v = v[p]
+        v = np.asarray(v, dtype=np.float32)
+        if v.ndim == 4:
+            v = v.transpose(3, 2, 0, 1)
+        out[key] = torch.from_numpy(np.array(v, dtype=np.float32, order="C"))
+    return out
+
+
+def load_torch_checkpoint(path, config: Config = Config()):
+    """Params from a ``.pt`` file: a bare state_dict or a training checkpoint dict with
+    a ``model_state_dict`` entry, possibly saved from CUDA tensors and holding numpy
+    scalars. Loaded on the CPU with ``weights_only=True`` and only numpy's scalar and
+    dtype globals allowed: no arbitrary code is unpickled."""
+    import pickle
+
+    import torch
+
+    allowed = [np.dtype, type(np.dtype(np.float64)), type(np.dtype(np.float32)),
+               type(np.dtype(np.int64)), type(np.dtype(np.int32))]
+    try:
+        allowed.append(np._core.multiarray.scalar)
+    except AttributeError:  # numpy < 2
+        allowed.append(np.core.multiarray.scalar)
+    try:
+        with torch.serialization.safe_globals(allowed):
+            obj = torch.load(path, map_location="cpu", weights_only=True)
+    except FileNotFoundError:
+        raise
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError) as e:
+        raise ValueError(f"{path}: not a loadable DLCTUS checkpoint (only tensors, dicts and "
+                         f"numpy scalars are accepted): {e}") from e
+    if isinstance(obj, dict) and "model_state_dict" in obj:
+        obj = obj["model_state_dict"]
+    if not isinstance(obj, dict):
+        raise ValueError(f"{path}: expected a state_dict or a dict with 'model_state_dict', "
+                         f"got {type(obj).__name__}")
+    obj = {k[len("module."):] if k.startswith("module.") else k: v for k, v in obj.items()}
+    return params_from_torch(obj, config)

@@ -1,0 +1,156 @@
+"""The one ``lax.scan`` helper: every model, every training, evaluation and benchmark
+path runs a model's ``step`` through here (after jax-cfd's ``trajectory``).
+
+Sequences are time-major: ``frames`` is a ``jtus.Frame`` whose fields are
+``[T,B,...]``, ``targets`` is ``[T,B,H,W,3]``.
+
+Training losses see, for each frame, the previous output and target (temporal losses
+warp them to the current frame); they travel in ``Carry`` next to the model state,
+so that truncated BPTT windows chain exactly.
+
+Modes:
+- ``outputs``: no-gradient evaluation rollout, the stacked outputs.
+- ``metrics``: a per-frame reduction instead of the outputs (long videos).
+- ``window_loss``: loss averaged over the last ``loss_frames`` frames of a window,
+  differentiable through the whole window (BPTT; the thesis uses 5 of 30).
+- ``tbptt_windows``: the static window plan of truncated BPTT (k1, k2): an update
+  every k1 frames, each back-propagating through the last k2 frames; the carry
+  between windows is cut with ``stop_gradient``. With ``k2 = T`` it is BPTT.
+
+``remat`` wraps the step in ``jax.checkpoint``. ``unroll`` is passed to ``lax.scan``
+(``True`` unrolls fully: on XLA:CPU a rolled scan over convolutions has a slow
+backward, see ``docs/performance.md``).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+
+class Carry(NamedTuple):
+    state: Any              # the model's state
+    prev_out: jax.Array     # [B,H,W,3] the previous frame's output
+    prev_target: jax.Array  # [B,H,W,3] the previous frame's target
+    has_prev: jax.Array     # [] bool: False at the start of a video
+
+
+def start(state, target_like) -> Carry:
+    """The carry at the start of a video (no previous frame)."""
+    def zeros():  # two buffers: the carry may be donated
+        return jnp.zeros(target_like.shape, jnp.float32)
+
+    return Carry(state, zeros(), zeros(), jnp.asarray(False))
+
+
+def _body(step, params, remat):
+    fn = jax.checkpoint(step) if remat else step
+    return lambda state, frame: fn(params, state, frame)
+
+
+def outputs(step, params, state, frames, *, remat=False, unroll=1):
+    """Scan ``step`` over ``frames``; returns ``(outs [T,B,H,W,3], final state)``."""
+    body = _body(step, params, remat)
+
+    def f(s, frame):
+        out, s = body(s, frame)
+        return s, out
+
+    state, outs = jax.lax.scan(f, state, frames, unroll=unroll)
+    return outs, state
+
+
+def metrics(step, params, state, frames, targets, metric_fn, *, unroll=1):
+    """Scan and reduce each frame with ``metric_fn(out, target, frame) -> pytree``;
+    returns ``(per-frame metrics stacked over T, final state)``; no outputs kept."""
+    body = _body(step, params, False)
+
+    def f(s, xs):
+        frame, target = xs
+        out, s = body(s, frame)
+        return s, metric_fn(out, target, frame)
+
+    state, ms = jax.lax.scan(f, state, (frames, targets), unroll=unroll)
+    return ms, state
+
+
+def _segment(body, loss_fn, carry, frames, targets, with_loss, unroll):
+    def f(c, xs):
+        frame, target = xs
+        out, state = body(c.state, frame)
+        loss = (loss_fn(out, target, c.prev_out, c.prev_target, c.has_prev, frame)
+                if with_loss else jnp.zeros((), jnp.float32))
+        return Carry(state, out.astype(jnp.float32), target.astype(jnp.float32),
+                     jnp.asarray(True)), loss
+
+    return jax.lax.scan(f, carry, (frames, targets), unroll=unroll)
+
+
+def window_loss(step, loss_fn, params, carry: Carry, frames, targets, *, loss_frames,
+                keep_at=None, remat=False, unroll=1):
+    """Mean of ``loss_fn`` over the last ``loss_frames`` frames of the window.
+
+    ``loss_fn(out, target, prev_out, prev_target, has_prev, frame) -> scalar``.
+    Returns ``(loss, (final carry, carry after keep_at frames or None))``. Segments
+    are cut at static indices, so frames before the loss frames compute no loss.
+    """
+    n = frames.color.shape[0]
+    if not 1 <= loss_frames <= n:
+        raise ValueError(f"loss_frames: expected 1..{n} (the window length), got {loss_frames}")
+    if keep_at is not None and not 0 < keep_at <= n:
+        raise ValueError(f"keep_at: expected 1..{n}, got {keep_at}")
+    body = _body(step, params, remat)
+    cuts = sorted({0, n - loss_frames, n} | ({keep_at} if keep_at else set()))
+    total, kept = jnp.zeros((), jnp.float32), None
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        seg = jax.tree_util.tree_map(lambda x: x[a:b], (frames, targets))
+        carry, losses = _segment(body, loss_fn, carry, *seg, with_loss=a >= n - loss_frames,
+                                 unroll=unroll)
+        total = total + losses.sum()
+        if b == keep_at:
+            kept = carry
+    return total / loss_frames, (carry, kept)
+
+
+class Window(NamedTuple):
+    start: int  # first frame of the window
+    stop: int   # one past the last frame; the loss covers [stop - k1, stop)
+
+
+def tbptt_windows(length, k1, k2):
+    """The windows of TBPTT(k1, k2) over a sequence of ``length`` frames.
+
+    Windows all have k2 frames (one trace of the train step); the first ends at k2,
+    each next one k1 frames later, and starts from the carry after the first k1
+    frames of the previous one. Requires ``1 <= k1 <= k2 <= length`` and
+    ``(length - k2) % k1 == 0`` so that every frame after the first window is
+    trained on exactly once.
+    """
+    if not 1 <= k1 <= k2 <= length:
+        raise ValueError(f"tbptt: expected 1 <= k1 <= k2 <= sequence length, "
+                         f"got k1={k1}, k2={k2}, length={length}")
+    if (length - k2) % k1:
+        raise ValueError(f"tbptt: (length - k2) = {length - k2} must be a multiple of "
+                         f"k1 = {k1}")
+    return [Window(s, s + k2) for s in range(0, length - k2 + 1, k1)]
+
+
+def tbptt_grads(step, loss_fn, params, carry, frames, targets, *, k1, k2, remat=False,
+                unroll=1):
+    """Gradients of every TBPTT window at fixed ``params`` (a reference for tests and
+    for plans that apply updates elsewhere). Returns ``([(loss, grads)], carry)``."""
+
+    def f(p, c, fr, tg):
+        return window_loss(step, loss_fn, p, c, fr, tg, loss_frames=k1,
+                           keep_at=k1 if k1 < k2 else None, remat=remat, unroll=unroll)
+
+    grad_fn = jax.jit(jax.value_and_grad(f, has_aux=True))
+    results = []
+    for w in tbptt_windows(frames.color.shape[0], k1, k2):
+        sl = jax.tree_util.tree_map(lambda x: x[w.start:w.stop], (frames, targets))
+        (loss, (last, kept)), grads = grad_fn(params, carry, *sl)
+        results.append((loss, grads))
+        carry = jax.lax.stop_gradient(kept if kept is not None else last)
+    return results, carry

@@ -1,0 +1,45 @@
+"""Small synthetic sequences for model tests: smooth images, sub-pixel motion,
+jitter from the thesis patterns. Not a renderer: just well-conditioned inputs."""
+
+import jax.numpy as jnp
+import numpy as np
+
+from jtus.frame import Frame
+from jtus.sampling import jitter_sequence
+
+
+def _smooth(rng, shape, lo=0.0, hi=1.0, k=3):
+    """[...,h,w,c] sums of a few random low-frequency sinusoids mapped into [lo,hi]."""
+    *lead, h, w, c = shape
+    yy, xx = np.mgrid[0:h, 0:w] / max(h, w)
+    out = np.zeros(shape)
+    for _ in range(k):
+        fx, fy = rng.uniform(0.5, 3, size=2)
+        ph = rng.uniform(0, 2 * np.pi, size=tuple(lead) + (1, 1, c))
+        out += np.sin(2 * np.pi * (fx * xx + fy * yy)[..., None] + ph)
+    out = (out / k + 1) / 2
+    return lo + (hi - lo) * out
+
+
+def sequence(T=10, B=2, h=8, w=8, factor=4, seed=0, dtype=np.float32, max_motion=0.8,
+             reset_at=None):
+    """Time-major ``Frame`` of [T,B,...] numpy arrays and targets [T,B,H,W,3]."""
+    rng = np.random.default_rng(seed)
+    color = _smooth(rng, (T, B, h, w, 3))
+    depth = _smooth(rng, (T, B, h, w, 1), 0.3, 0.99)
+    motion = (_smooth(rng, (T, B, h, w, 2)) * 2 - 1) * max_motion
+    seq = jitter_sequence("thesis", factor)
+    offset = rng.integers(0, len(seq), size=B)
+    jitter = np.stack([seq[(t + offset) % len(seq)] for t in range(T)])
+    reset = np.zeros((T, B), bool)
+    if reset_at is not None:
+        t, b = reset_at
+        reset[t, b] = True
+    targets = _smooth(rng, (T, B, h * factor, w * factor, 3))
+    frames = Frame(*(x.astype(dtype) for x in (color, depth, motion, jitter)), reset)
+    return frames, targets.astype(dtype)
+
+
+def to_jax(tree):
+    import jax
+    return jax.tree_util.tree_map(jnp.asarray, tree)

@@ -1,0 +1,88 @@
+"""Losses of thesis sec. 4.3.3, on hand-made cases."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jtus import losses
+from jtus.frame import Frame
+
+
+def _frame(motion):
+    b, h, w, _ = motion.shape
+    return Frame(jnp.zeros((b, h, w, 3)), jnp.zeros((b, h, w, 1)), jnp.asarray(motion),
+                 jnp.full((b, 2), 0.5))
+
+
+def _case(rng, factor=2, h=4, w=5, motion=None):
+    shape = (1, h * factor, w * factor, 3)
+    out, target, prev_out, prev_target = (jnp.asarray(rng.uniform(size=shape), jnp.float32)
+                                          for _ in range(4))
+    mv = np.zeros((1, h, w, 2), np.float32) if motion is None else motion
+    return out, target, prev_out, prev_target, _frame(mv)
+
+
+def test_st_linear_endpoints(rng):
+    out, target, prev_out, prev_target, frame = _case(rng)
+    args = (out, target, prev_out, prev_target, jnp.asarray(True), frame)
+    x, y = out - target, prev_out - prev_target  # zero motion: f_prev is the identity
+    l0 = losses.make("st-linear", 2, theta=0.0)(*args)
+    np.testing.assert_allclose(l0, jnp.mean(jnp.abs(x)) + jnp.mean(jnp.abs(y)), rtol=1e-6)
+    l1 = losses.make("st-linear", 2, theta=1.0)(*args)
+    np.testing.assert_allclose(l1, jnp.mean(jnp.abs(x - y)), rtol=1e-6)
+
+
+@pytest.mark.parametrize("xv,yv,theta,expect", [
+    (0.3, 0.1, 0.5, 0.4 + 0.5 * (0.2 - 0.4)),  # same sign: the temporal term helps
+    (0.3, -0.1, 0.5, 0.4),                      # opposite signs: |x-y| = |x|+|y|
+    (0.3, 0.3, 0.9, 0.6 - 0.9 * 0.6),
+    (-0.2, -0.5, 0.1, 0.7 + 0.1 * (0.3 - 0.7)),
+])
+def test_st_linear_hand_computed(xv, yv, theta, expect):
+    shape = (1, 4, 4, 3)
+    target = jnp.full(shape, 0.5)
+    out = target + xv
+    prev_target = jnp.full(shape, 0.25)
+    prev_out = prev_target + yv
+    loss = losses.make("st-linear", 2, theta=theta)(out, target, prev_out, prev_target,
+                                                     jnp.asarray(True),
+                                                     _frame(np.zeros((1, 2, 2, 2), np.float32)))
+    np.testing.assert_allclose(loss, expect, rtol=1e-5)
+
+
+def test_quadratic_st_and_salvi(rng):
+    out, target, prev_out, prev_target, frame = _case(rng)
+    args = (out, target, prev_out, prev_target, jnp.asarray(True), frame)
+    x, y = out - target, prev_out - prev_target
+    np.testing.assert_allclose(losses.make("st", 2, theta=0.3)(*args),
+                               jnp.mean(x * x + y * y - 0.6 * x * y), rtol=1e-5)
+    np.testing.assert_allclose(losses.make("salvi", 2)(*args),
+                               jnp.mean(x * x) + jnp.mean((x - y) ** 2), rtol=1e-5)
+
+
+def test_previous_error_is_warped_with_motion(rng):
+    """With a uniform motion of one LR pixel to the left (surfaces come from x + 1),
+    the previous error is read f HR pixels to the right; outside it is 0."""
+    f = 2
+    mv = np.zeros((1, 4, 5, 2), np.float32)
+    mv[..., 0] = 1.0
+    out, target, prev_out, prev_target, frame = _case(rng, factor=f, motion=mv)
+    x, y = losses.errors(out, target, prev_out, prev_target, jnp.asarray(True), frame, f)
+    prev_err = np.asarray(prev_out - prev_target)
+    np.testing.assert_allclose(np.asarray(y)[:, :, :-f], prev_err[:, :, f:], atol=1e-6)
+    # The last column reads at x = W - 0.5 + 2 > W: outside, no previous error.
+    np.testing.assert_array_equal(np.asarray(y)[:, :, -1], 0.0)
+
+
+def test_no_previous_frame_reduces_to_l1(rng):
+    out, target, prev_out, prev_target, frame = _case(rng)
+    loss = losses.make("st-linear", 2, theta=0.7)(out, target, prev_out, prev_target,
+                                                   jnp.asarray(False), frame)
+    np.testing.assert_allclose(loss, jnp.mean(jnp.abs(out - target)), rtol=1e-6)
+
+
+def test_loss_names_and_theta_checked():
+    with pytest.raises(ValueError, match="loss"):
+        losses.make("huber", 2)
+    with pytest.raises(ValueError, match="theta"):
+        losses.make("st-linear", 2, theta=1.5)

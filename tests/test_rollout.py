@@ -1,0 +1,192 @@
+"""The rollout helper with DLCTUS: scan against a Python loop, BPTT/TBPTT, remat,
+formulations, resets, float64 gradients, and one trace across TBPTT windows."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pytest
+from jax.test_util import check_grads
+
+from jtus import losses, rollout, train
+from jtus.models import dlctus
+from jtus.models.base import param_count
+from tests import seqdata
+
+
+def _setup(T=6, factor=4, seed=0, config=None, dtype=np.float32, **kw):
+    config = config or dlctus.Config(factor=factor,
+                                     dtype="float64" if dtype == np.float64 else "float32")
+    frames, targets = seqdata.sequence(T=T, B=2, h=8 * 4 // factor, w=8 * 4 // factor,
+                                       factor=factor, seed=seed, dtype=dtype, **kw)
+    model = dlctus.make(config)
+    params = model.init(jax.random.PRNGKey(seed))
+    params["block4"]["conv2"]["bias"] = params["block4"]["conv2"]["bias"] + 0.5
+    if dtype == np.float64:
+        params = jax.tree_util.tree_map(lambda x: x.astype(jnp.float64), params)
+    frames, targets = seqdata.to_jax((frames, targets))
+    return model, params, frames, targets
+
+
+def _first(tree):
+    return jax.tree_util.tree_map(lambda x: x[0], tree)
+
+
+def test_param_count_matches_thesis_network():
+    # down 4x4x8x32 + 32; four blocks of two 3x3x32x32 + 32 convolutions.
+    params = dlctus.init(jax.random.PRNGKey(0))
+    assert param_count(params) == (4 * 4 * 8 * 32 + 32) + 4 * 2 * (3 * 3 * 32 * 32 + 32) == 78112
+
+
+def _interior_params(params):
+    """Weights small enough that the network's outputs o stay strictly inside (0, 1):
+    no clamp is on its boundary, where the subgradient is decided by the last ulp."""
+    params = jax.tree_util.tree_map(lambda x: 0.2 * x, params)
+    params["block4"]["conv2"]["bias"] = params["block4"]["conv2"]["bias"] + 0.5
+    return params
+
+
+def test_scan_equals_python_loop_values_and_vjp(x64):
+    model, params, frames, _ = _setup(T=5, dtype=np.float64)
+    params = _interior_params(params)
+    frames = frames._replace(reset=None)
+    rng = np.random.default_rng(0)
+    state0 = dlctus.State(jnp.asarray(rng.uniform(0.1, 0.9, size=(2, 32, 32, 4))))
+
+    def scanned(p, s):
+        return rollout.outputs(model.step, p, s, frames)
+
+    def looped(p, s):
+        outs = []
+        for t in range(5):
+            out, s = model.step(p, s, jax.tree_util.tree_map(lambda x: x[t], frames))
+            outs.append(out)
+        return jnp.stack(outs), s
+
+    net_in, _, _ = dlctus.prepare(state0, _first(frames), model.config)
+    o = dlctus.network(params, net_in, model.config)
+    assert 0.05 < float(o.min()) and float(o.max()) < 0.95
+    (o1, s1), vjp1 = jax.vjp(scanned, params, state0)
+    (o2, s2), vjp2 = jax.vjp(looped, params, state0)
+    np.testing.assert_allclose(o1, o2, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(s1.history, s2.history, rtol=0, atol=1e-13)
+    ct = (jnp.asarray(rng.normal(size=o1.shape)),
+          dlctus.State(jnp.asarray(rng.normal(size=s1.history.shape))))
+    g1, g2 = vjp1(ct), vjp2(ct)
+    for a, b in zip(jax.tree_util.tree_leaves(g1), jax.tree_util.tree_leaves(g2)):
+        np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-12)
+
+
+def test_check_grads_float64_three_frames(x64):
+    config = dlctus.Config(factor=4, warp="bilinear", dtype="float64")
+    model, params, frames, targets = _setup(T=3, config=config, dtype=np.float64)
+    frames = frames._replace(reset=None)
+    state0 = model.init_state(_first(frames))
+    sub = {"down": params["down"], "block4": params["block4"]}
+
+    def loss(p):
+        full = dict(params, **p)
+        outs, s = rollout.outputs(model.step, full, state0, frames)
+        return jnp.mean((outs - targets) ** 2) + jnp.mean(s.history[..., 3])
+
+    check_grads(loss, (sub,), order=1, modes=("rev",), eps=1e-6, atol=1e-6, rtol=1e-5)
+
+
+def _loss_value_and_grad(model, params, frames, targets, K, **kw):
+    carry = rollout.start(model.init_state(_first(frames)), targets[0])
+
+    def f(p):
+        return rollout.window_loss(model.step, losses.make("st-linear", 4, theta=0.5), p,
+                                   carry, frames, targets, loss_frames=K, **kw)
+
+    return jax.jit(jax.value_and_grad(f, has_aux=True))(params)
+
+
+def test_remat_and_unroll_equal_plain():
+    model, params, frames, targets = _setup(T=6)
+    (l0, _), g0 = _loss_value_and_grad(model, params, frames, targets, 3)
+    for kw in ({"remat": True}, {"unroll": True}):
+        (l1, _), g1 = _loss_value_and_grad(model, params, frames, targets, 3, **kw)
+        np.testing.assert_allclose(l1, l0, rtol=1e-6)
+        for a, b in zip(jax.tree_util.tree_leaves(g1), jax.tree_util.tree_leaves(g0)):
+            np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
+
+
+def test_tbptt_with_full_window_equals_bptt():
+    model, params, frames, targets = _setup(T=6)
+    (l0, _), g0 = _loss_value_and_grad(model, params, frames, targets, 2)
+    carry = rollout.start(model.init_state(_first(frames)), targets[0])
+    results, _ = rollout.tbptt_grads(model.step, losses.make("st-linear", 4, theta=0.5), params,
+                                     carry, frames, targets, k1=2, k2=6)
+    assert len(results) == 1
+    l1, g1 = results[0]
+    np.testing.assert_allclose(l1, l0, rtol=1e-6)
+    for a, b in zip(jax.tree_util.tree_leaves(g1), jax.tree_util.tree_leaves(g0)):
+        np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-8)
+
+
+def test_tbptt_windows_plan():
+    assert rollout.tbptt_windows(8, 2, 4) == [(0, 4), (2, 6), (4, 8)]
+    assert rollout.tbptt_windows(6, 3, 3) == [(0, 3), (3, 6)]
+    with pytest.raises(ValueError, match="multiple of"):
+        rollout.tbptt_windows(7, 2, 4)
+    with pytest.raises(ValueError, match="k1 <= k2"):
+        rollout.tbptt_windows(8, 4, 2)
+
+
+def test_tbptt_windows_chain_states():
+    """Each window starts from the state after k1 frames of the previous one: the
+    carried history equals the plain rollout's at that time."""
+    model, params, frames, targets = _setup(T=8)
+    carry = rollout.start(model.init_state(_first(frames)), targets[0])
+    _, last = rollout.tbptt_grads(model.step, losses.make("l1", 4), params, carry, frames,
+                                  targets, k1=2, k2=4)
+    outs, _ = rollout.outputs(model.step, params, model.init_state(_first(frames)), frames)
+    # The last window is [4, 8); the carry kept after its first k1=2 frames is time 6.
+    np.testing.assert_allclose(last.prev_out, outs[5], atol=1e-6)
+
+
+@pytest.mark.parametrize("formulation", ["opt1", "opt2"])
+def test_formulations_equal_standard(formulation):
+    model, params, frames, _ = _setup(T=4)
+    other = dlctus.make(dlctus.Config(factor=4, formulation=formulation))
+    s0 = model.init_state(_first(frames))
+    o1, s1 = rollout.outputs(model.step, params, s0, frames)
+    o2, s2 = rollout.outputs(other.step, params, s0, frames)
+    np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(s2.history, s1.history, rtol=0, atol=1e-6)
+
+
+def test_reset_equals_fresh_init_state():
+    model, params, frames, _ = _setup(T=4, reset_at=(2, 1))
+    s0 = model.init_state(_first(frames))
+    outs, _ = rollout.outputs(model.step, params, s0, frames)
+    # Sample 1 restarted at frame 2: same as a fresh rollout from frame 2 on.
+    tail = jax.tree_util.tree_map(lambda x: x[2:], frames)
+    fresh, _ = rollout.outputs(model.step, params, model.init_state(_first(tail)), tail)
+    np.testing.assert_allclose(outs[2:, 1], fresh[:, 1], rtol=0, atol=1e-6)
+    assert np.abs(np.asarray(outs[2:, 0] - fresh[:, 0])).max() > 1e-3  # sample 0 did not reset
+
+
+def test_train_step_traces_once_across_tbptt_windows():
+    model, params, frames, targets = _setup(T=8)
+    frames = frames._replace(reset=frames.reset.at[0].set(True))
+    traces = []
+    base = losses.make("l1", 4)
+
+    def counted(*args):
+        traces.append(1)
+        return base(*args)
+
+    opt = optax.adam(1e-3)
+    step = train.make_train_step(model, counted, opt, loss_frames=2, keep_at=2)
+    ts = train.create_train_state(params, opt)
+    carry = rollout.start(model.init_state(_first(frames)), targets[0])
+    seen = []
+    for w in rollout.tbptt_windows(8, 2, 4):
+        sl = jax.tree_util.tree_map(lambda x: x[w.start:w.stop], (frames, targets))
+        ts, carry, stats = step(ts, carry, *sl)
+        seen.append(float(stats["loss"]))
+    assert int(ts.step) == 3 and all(np.isfinite(seen))
+    assert step._cache_size() == 1  # three windows, one compiled train step
+    assert len(traces) == 1  # the loss is traced once, in the one loss segment
