@@ -43,6 +43,7 @@ from jtus.models import layers
 from jtus.models.base import Model, carry_dtype, compute_dtype
 
 FORMULATIONS = ("standard", "opt1", "opt2")
+CONV_BACKWARDS = ("autodiff", "custom")
 DOWN = 4  # the network works at 1/4 of the HR resolution
 
 
@@ -56,7 +57,10 @@ class Config:
     accumulation: bool = True
     dilation: bool = False
     dtype: str = "float32"       # network compute dtype; the history stays float32
-    formulation: str = "standard"
+    # The fastest on XLA:CPU by measurement (docs/performance.md); every formulation
+    # and backward gives the same values, so they change speed only.
+    formulation: str = "opt2"
+    conv_backward: str = "custom"    # or "autodiff": see layers.conv_edge_fast
     channels: int = 32
     blocks: int = 4
 
@@ -73,6 +77,9 @@ class Config:
         if self.channels != 2 * DOWN * DOWN:
             raise ValueError(f"channels: the pixel shuffle to 2 outputs needs "
                              f"{2 * DOWN * DOWN}, got {self.channels}")
+        if self.conv_backward not in CONV_BACKWARDS:
+            raise ValueError(f"conv_backward: expected one of {CONV_BACKWARDS}, "
+                             f"got {self.conv_backward!r}")
         compute_dtype(self.dtype)
 
 
@@ -111,10 +118,11 @@ def init_state(frame: Frame, config: Config = Config()) -> State:
 
 
 def _trunk(params, h, config):
+    conv = layers.conv_edge_fast if config.conv_backward == "custom" else layers.conv_edge
     for i in range(config.blocks):
         blk = params[f"block{i + 1}"]
-        r = jax.nn.relu(layers.conv_edge(h, blk["conv1"]["kernel"], blk["conv1"]["bias"]))
-        h = h + layers.conv_edge(r, blk["conv2"]["kernel"], blk["conv2"]["bias"])
+        r = jax.nn.relu(conv(h, blk["conv1"]["kernel"], blk["conv1"]["bias"]))
+        h = h + conv(r, blk["conv2"]["kernel"], blk["conv2"]["bias"])
     return h
 
 
