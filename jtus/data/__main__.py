@@ -1,0 +1,112 @@
+"""``python -m jtus.data``: generate datasets, import EXR sequences, export videos.
+
+    python -m jtus.data generate --preset default --out data/default.h5
+    python -m jtus.data import-exr --input renders/lr --target renders/hr --factor 4 \\
+        --sidecar renders/spec.json --out data/mine.h5
+    python -m jtus.data export --dataset data/default.h5 --split test --video objects_00 \\
+        --what target --format png --out out/objects
+    python -m jtus.data info --dataset data/default.h5
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+
+from jtus.data import dataset, exr
+
+
+def _parser():
+    p = argparse.ArgumentParser(prog="python -m jtus.data", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="cmd", required=True)
+    g = sub.add_parser("generate", help="render a preset into an HDF5 file (atomically)")
+    g.add_argument("--preset", choices=dataset.PRESET_NAMES, default="default")
+    g.add_argument("--out", required=True)
+    g.add_argument("--quiet", action="store_true")
+    i = sub.add_parser("import-exr", help="an EXR sequence into the HDF5 layout")
+    i.add_argument("--input", required=True, help="folder of LR per-frame EXRs")
+    i.add_argument("--target", required=True, help="folder of HR per-frame EXRs")
+    i.add_argument("--factor", type=int, required=True)
+    i.add_argument("--out", required=True)
+    i.add_argument("--sidecar", help="JSON with ImportSpec keys (flags below override it)")
+    i.add_argument("--split", default="test")
+    i.add_argument("--name", default="video_00")
+    i.add_argument("--color", help="comma-separated channel names, e.g. R,G,B")
+    i.add_argument("--depth", help="depth channel name")
+    i.add_argument("--motion", help="comma-separated motion channel names (x,y)")
+    i.add_argument("--motion-units", choices=("pixels", "uv", "ndc"))
+    i.add_argument("--motion-y-up", action="store_true", default=None)
+    i.add_argument("--motion-negate", action="store_true", default=None)
+    i.add_argument("--depth-kind", choices=("device", "reversed", "linear", "view"))
+    i.add_argument("--near", type=float)
+    i.add_argument("--far", type=float)
+    e = sub.add_parser("export", help="write a dataset video as EXR or PNG frames")
+    e.add_argument("--dataset", required=True)
+    e.add_argument("--split", default="test")
+    e.add_argument("--video", required=True)
+    e.add_argument("--what", default="target", help="target, or color@FACTOR")
+    e.add_argument("--format", choices=exr.IMAGE_FORMATS, default="png")
+    e.add_argument("--out", required=True)
+    n = sub.add_parser("info", help="summarize a dataset")
+    n.add_argument("--dataset", required=True)
+    return p
+
+
+def _import(args):
+    spec = exr.ImportSpec.from_json(args.sidecar) if args.sidecar else exr.ImportSpec()
+    over = {"color": tuple(args.color.split(",")) if args.color else None,
+            "depth": args.depth, "motion": tuple(args.motion.split(",")) if args.motion else None,
+            "motion_units": args.motion_units, "motion_y_up": args.motion_y_up,
+            "motion_negate": args.motion_negate, "depth_kind": args.depth_kind,
+            "near": args.near, "far": args.far}
+    spec = dataclasses.replace(spec, **{k: v for k, v in over.items() if v is not None})
+    exr.import_exr(args.input, args.target, args.factor, args.out, spec, args.split, args.name)
+    print(f"wrote {args.out}")
+
+
+def _export(args):
+    with dataset.Dataset(args.dataset) as ds:
+        g = ds.file[f"{args.split}/{args.video}"]
+        if args.what == "target":
+            frames = g["target"][:]
+        elif args.what.startswith("color@"):
+            frames = g[f"x{int(args.what.split('@')[1])}/color"][:]
+        else:
+            raise SystemExit(f"--what: expected target or color@FACTOR, got {args.what!r}")
+    paths = exr.write_sequence(frames.astype("float32"), args.out, args.format)
+    print(f"wrote {len(paths)} frames to {args.out}")
+
+
+def _info(args):
+    with dataset.Dataset(args.dataset) as ds:
+        a = ds.file.attrs
+        print(f"{args.dataset}: {a['size'][0]}x{a['size'][1]}, factors {list(ds.factors)}, "
+              f"spp {a['spp']}, mip_bias {a['mip_bias']}")
+        for split in dataset.SPLITS:
+            vids = ds.videos(split)
+            frames = sum(ds.file[f"{split}/{v}/target"].shape[0] for v in vids)
+            print(f"  {split}: {len(vids)} videos, {frames} frames")
+
+
+def main(argv=None):
+    args = _parser().parse_args(argv)
+    try:
+        if args.cmd == "generate":
+            dataset.generate(args.preset, args.out, progress=not args.quiet)
+            print(f"wrote {args.out}")
+        elif args.cmd == "import-exr":
+            _import(args)
+        elif args.cmd == "export":
+            _export(args)
+        else:
+            _info(args)
+    except (ValueError, FileNotFoundError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

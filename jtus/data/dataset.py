@@ -1,0 +1,306 @@
+"""HDF5 datasets of rendered videos, and the readers that feed training and evaluation.
+
+Layout (``docs/data.md``)::
+
+    /                  attrs: format="jtus-dataset", version, spp, mip_bias, spp_match,
+                              conventions (JSON), factors, size
+    /{split}/{video}/  attrs: scene, effects (JSON), length
+        target   [T,H,W,3]  float16, linear RGB in [0,1]
+        reset    [T]        bool, True at the first frame and at camera cuts
+        x{f}/    attrs: mip_bias (eq. 47 for this factor)
+            color  [T,h,w,3] float16
+            depth  [T,h,w,1] float32, device depth
+            motion [T,h,w,2] float32, backward, LR pixels
+            jitter [T,2]     float32, in [0,1)^2
+
+Files are written to a temporary name beside the destination and renamed when
+complete, so an interrupted ``generate`` leaves nothing behind.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import math
+import os
+import tempfile
+
+import h5py
+import numpy as np
+
+from jtus.frame import Frame
+
+FORMAT = "jtus-dataset"
+VERSION = 1
+SPLITS = ("train", "val", "test")
+CONVENTIONS = {
+    "pixel_centre": "(j + 0.5, i + 0.5)", "axes": "x right, y down",
+    "motion": "backward, LR pixels: the surface under p was at p + motion",
+    "jitter": "offset inside the LR pixel in [0,1)^2", "depth": "D3D device depth, not reversed",
+    "color": "linear RGB", "doc": "docs/conventions.md",
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Preset:
+    """What ``generate`` renders: per split, (scene names, videos per scene, frames)."""
+    size: tuple
+    factors: tuple
+    spp: int
+    spp_match: int
+    splits: dict
+
+    def total_frames(self):
+        return sum(len(s) * n * t for s, n, t in self.splits.values())
+
+
+def _presets():
+    from jtus.sim import SCENES
+    all_ = tuple(SCENES)
+    return {
+        "tiny": Preset((32, 32), (2, 4), 4, 1, {
+            "train": (("camera_orbit", "objects"), 1, 8), "val": (("camera_orbit",), 1, 8),
+            "test": (("objects",), 1, 8)}),
+        "default": Preset((256, 256), (2, 4), 16, 1, {
+            "train": (all_, 2, 24),
+            "val": (("camera_orbit", "objects", "fence_pan", "everything"), 1, 24),
+            "test": (all_, 1, 30)}),
+        "paper": Preset((1080, 1920), (2, 4), 64, 1, {
+            "train": (all_, 6, 60), "val": (all_[:10], 1, 60), "test": (all_[:10], 1, 60)}),
+    }
+
+
+PRESET_NAMES = ("tiny", "default", "paper")
+
+
+def preset(name) -> Preset:
+    p = _presets()
+    if name not in p:
+        raise ValueError(f"preset: expected one of {PRESET_NAMES}, got {name!r}")
+    return p[name]
+
+
+def mip_bias(factor, spp_match):
+    """Eq. 47: the input's mip bias for up-sampling ``factor`` matching ``spp_match``."""
+    return -0.5 * math.log2(factor * factor) - 0.5 * math.log2(spp_match)
+
+
+@contextlib.contextmanager
+def atomic_path(path):
+    """Yield a temporary path beside ``path``; rename it onto ``path`` on success and
+    delete it on any failure (including KeyboardInterrupt)."""
+    path = os.fspath(path)
+    d = os.path.dirname(os.path.abspath(path))
+    os.makedirs(d, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=os.path.basename(path) + ".", suffix=".tmp", dir=d)
+    os.close(fd)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file ordinary permissions
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.remove(tmp)
+        raise
+
+
+def _chunks(shape, t=8, s=64):
+    return (min(t, shape[0]),) + tuple(min(s, n) for n in shape[1:3]) + tuple(shape[3:])
+
+
+def write_video(group, video, factors, spp_match):
+    """Write one rendered video dict (``jtus.sim.video``'s layout) into ``group``."""
+    tgt = video["target"]
+    group.create_dataset("target", data=tgt.astype(np.float16), chunks=_chunks(tgt.shape))
+    group.create_dataset("reset", data=video["reset"].astype(bool))
+    for f in factors:
+        g = group.create_group(f"x{f}")
+        g.attrs["mip_bias"] = mip_bias(f, spp_match)
+        v = video[f"x{f}"]
+        g.create_dataset("color", data=v["color"].astype(np.float16),
+                         chunks=_chunks(v["color"].shape, s=64 // f))
+        for k in ("depth", "motion"):
+            g.create_dataset(k, data=v[k].astype(np.float32), chunks=_chunks(v[k].shape, s=64 // f))
+        g.create_dataset("jitter", data=v["jitter"].astype(np.float32))
+
+
+def _root_attrs(fh, size, factors, spp, spp_match):
+    fh.attrs.update({"format": FORMAT, "version": VERSION, "spp": spp, "spp_match": spp_match,
+                     "mip_bias": 0.0 - 0.5 * math.log2(spp_match), "factors": list(factors),
+                     "size": list(size), "conventions": json.dumps(CONVENTIONS)})
+
+
+def generate(name_or_preset, out, progress=True, scenes=None):
+    """Render a preset into ``out`` (HDF5), atomically, with a progress bar."""
+    from tqdm import tqdm
+
+    from jtus.sim import get_scene
+    from jtus.sim.video import VideoRenderer
+
+    p = preset(name_or_preset) if isinstance(name_or_preset, str) else name_or_preset
+    bar = tqdm(total=p.total_frames(), unit="frame", desc=f"generate {out}", disable=not progress)
+    renderers = {}
+    with atomic_path(out) as tmp, h5py.File(tmp, "w") as fh:
+        _root_attrs(fh, p.size, p.factors, p.spp, p.spp_match)
+        for split in SPLITS:
+            names, per_scene, length = p.splits[split]
+            for name in names:
+                if scenes is not None and name not in scenes:
+                    continue
+                if name not in renderers:
+                    renderers[name] = VideoRenderer(get_scene(name), p.size, p.factors, p.spp,
+                                                    p.spp_match)
+                r = renderers[name]
+                for i in range(per_scene):
+                    video = r.video(split, i, length, progress=bar.update)
+                    g = fh.create_group(f"{split}/{name}_{i:02d}")
+                    g.attrs.update({"scene": name, "effects": json.dumps(list(r.scene.effects)),
+                                    "length": length, "index": i})
+                    write_video(g, video, p.factors, p.spp_match)
+        fh.flush()
+    bar.close()
+    return out
+
+
+class Dataset:
+    """Read a jtus HDF5 dataset: whole videos for evaluation, aligned crops for training."""
+
+    def __init__(self, path):
+        self.path = os.fspath(path)
+        if not os.path.exists(self.path):
+            raise FileNotFoundError(f"dataset: {self.path} does not exist (generate it with "
+                                    f"`python -m jtus.data generate --preset default --out "
+                                    f"{self.path}`)")
+        try:
+            self.file = h5py.File(self.path, "r")
+        except OSError as e:
+            raise ValueError(f"dataset: {self.path} is not a readable HDF5 file ({e})") from e
+        fmt = self.file.attrs.get("format")
+        if fmt != FORMAT:
+            raise ValueError(f"dataset: {self.path} has format {fmt!r}, expected {FORMAT!r}")
+        if int(self.file.attrs["version"]) != VERSION:
+            raise ValueError(f"dataset: version {self.file.attrs['version']} is not {VERSION}")
+        self.factors = tuple(int(f) for f in self.file.attrs["factors"])
+        self.size = tuple(int(s) for s in self.file.attrs["size"])
+
+    def close(self):
+        self.file.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def videos(self, split):
+        if split not in self.file:
+            return []
+        return sorted(self.file[split].keys())
+
+    def _check_factor(self, factor):
+        if factor not in self.factors:
+            raise ValueError(f"factor: the dataset holds {self.factors}, got {factor}")
+
+    def video(self, split, name, factor):
+        """A whole video: ``(Frame [T,1,...], targets [T,1,H,W,3])`` float32, reset at t=0."""
+        self._check_factor(factor)
+        g = self.file[f"{split}/{name}"]
+        x = g[f"x{factor}"]
+        reset = g["reset"][:].copy()
+        reset[0] = True
+        frame = Frame(x["color"][:].astype(np.float32)[:, None], x["depth"][:][:, None],
+                      x["motion"][:][:, None], x["jitter"][:][:, None], reset[:, None])
+        return frame, g["target"][:].astype(np.float32)[:, None]
+
+    def crops(self, split, factor, batch, seq_len, crop, rng, return_index=False):
+        """Random aligned crops: ``(Frame [T,B,...], targets [T,B,crop,crop,3])``.
+
+        The HR crop starts at a multiple of ``factor`` so that the LR crop lies exactly
+        under it; ``crop`` must be a multiple of 4 and of ``factor``. The first frame
+        of each crop has ``reset`` set (the model starts its history there).
+        """
+        self._check_factor(factor)
+        if crop % 4 or crop % factor:
+            raise ValueError(f"crop: expected a multiple of 4 and of factor {factor}, got {crop}")
+        H, W = self.size
+        if crop > min(H, W):
+            raise ValueError(f"crop: {crop} exceeds the frame size {H}x{W}")
+        names = self.videos(split)
+        if not names:
+            raise ValueError(f"dataset: no videos in split {split!r}")
+        c = crop // factor
+        cols = {k: [] for k in ("color", "depth", "motion", "jitter", "reset", "target")}
+        index = []
+        for _ in range(batch):
+            name = names[rng.integers(len(names))]
+            g = self.file[f"{split}/{name}"]
+            T = g["target"].shape[0]
+            if seq_len > T:
+                raise ValueError(f"seq_len: {seq_len} exceeds the video length {T}")
+            t0 = int(rng.integers(0, T - seq_len + 1))
+            y = int(rng.integers(0, (H - crop) // factor + 1))
+            xx = int(rng.integers(0, (W - crop) // factor + 1))
+            x = g[f"x{factor}"]
+            index.append((name, t0, y, xx))
+            ts = slice(t0, t0 + seq_len)
+            cols["color"].append(x["color"][ts, y:y + c, xx:xx + c].astype(np.float32))
+            cols["depth"].append(x["depth"][ts, y:y + c, xx:xx + c])
+            cols["motion"].append(x["motion"][ts, y:y + c, xx:xx + c])
+            cols["jitter"].append(x["jitter"][ts])
+            r = g["reset"][ts].copy()
+            r[0] = True
+            cols["reset"].append(r)
+            cols["target"].append(g["target"][ts, y * factor:y * factor + crop,
+                                              xx * factor:xx * factor + crop].astype(np.float32))
+        st = {k: np.stack(v, 1) for k, v in cols.items()}
+        frame = Frame(st["color"], st["depth"], st["motion"], st["jitter"], st["reset"])
+        return (frame, st["target"], index) if return_index else (frame, st["target"])
+
+
+class StreamingSource:
+    """Renders training crops on the fly, through ``Dataset.crops``'s interface, for
+    machines where rendering is cheaper than disk."""
+
+    def __init__(self, scenes, size=(256, 256), factors=(2, 4), spp=16, spp_match=1,
+                 split="train", videos_per_scene=1000):
+        from jtus.sim import get_scene
+        from jtus.sim.video import VideoRenderer
+
+        self.renderers = [VideoRenderer(get_scene(s), size, factors, spp, spp_match)
+                          for s in scenes]
+        self.size, self.factors, self.split = tuple(size), tuple(factors), split
+        self.videos_per_scene = videos_per_scene
+
+    def crops(self, split, factor, batch, seq_len, crop, rng):
+        from jtus.sampling import jitter_sequence
+        from jtus.sim import paths
+
+        H, W = self.size
+        c = crop // factor
+        seq = jitter_sequence("thesis", factor)
+        cols = {k: [] for k in ("color", "depth", "motion", "jitter", "reset", "target")}
+        for _ in range(batch):
+            r = self.renderers[rng.integers(len(self.renderers))]
+            states = paths.timeline(r.scene, split, int(rng.integers(self.videos_per_scene)),
+                                    seq_len, W / H)
+            y = int(rng.integers(0, (H - crop) // factor + 1))
+            xx = int(rng.integers(0, (W - crop) // factor + 1))
+            per = {k: [] for k in cols}
+            for t, st in enumerate(states):
+                jit = seq[t % len(seq)].astype(np.float32)
+                col, dep, mv = r.input(st, factor, jit)
+                per["color"].append(col[y:y + c, xx:xx + c])
+                per["depth"].append(dep[y:y + c, xx:xx + c])
+                per["motion"].append(mv[y:y + c, xx:xx + c])
+                per["jitter"].append(jit)
+                per["reset"].append(t == 0 or st.cut)
+                per["target"].append(r.target(st)[y * factor:y * factor + crop,
+                                                  xx * factor:xx * factor + crop])
+            for k in cols:
+                cols[k].append(np.stack(per[k]))
+        st = {k: np.stack(v, 1) for k, v in cols.items()}
+        return (Frame(st["color"].astype(np.float32), st["depth"], st["motion"], st["jitter"],
+                      st["reset"].astype(bool)), st["target"].astype(np.float32))

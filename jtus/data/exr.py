@@ -1,0 +1,204 @@
+"""EXR in and out: per-frame EXR sequences from external renderers to the HDF5 layout,
+and any sequence back to EXR or PNG.
+
+OpenEXR facts this module respects (``../shared/FINDINGS.md``): arrays must be
+C-contiguous or they are written wrong, a multi-component array under one key becomes
+three channels, header and pixels must be copied inside the ``with`` block, and
+channels are stored alphabetically (read them by name).
+
+Conventions are converted here, once (``jtus.data.conventions``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+
+import numpy as np
+
+from jtus.data import conventions
+
+IMAGE_FORMATS = ("exr", "png")
+
+
+def write_exr(path, channels, half=False):
+    """Write ``{name: [H,W] array}`` as one EXR part (ZIP compression)."""
+    import OpenEXR
+
+    arrays = {}
+    shape = None
+    for name, a in channels.items():
+        a = np.asarray(a)
+        if a.ndim != 2:
+            raise ValueError(f"channel {name!r}: expected a 2-D array, got shape {a.shape}")
+        if shape is not None and a.shape != shape:
+            raise ValueError(f"channel {name!r}: shape {a.shape} differs from {shape}")
+        shape = a.shape
+        arrays[name] = np.ascontiguousarray(a, dtype=np.float16 if half else np.float32)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with OpenEXR.File(header, arrays) as f:
+        f.write(os.fspath(path))
+
+
+def read_exr(path):
+    """``({name: float32 [H,W]}, header dict)``; clear errors for missing or corrupt files."""
+    import OpenEXR
+
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"{path}: no such EXR file")
+    try:
+        with OpenEXR.File(path, separate_channels=True) as f:
+            header = dict(f.header())
+            chans = {k: np.array(v.pixels, dtype=np.float32) for k, v in f.channels().items()}
+    except Exception as e:  # OpenEXR raises several types for damaged files
+        raise ValueError(f"{path}: not a readable EXR file ({e})") from e
+    return chans, header
+
+
+def _pick(chans, names, path, field):
+    missing = [n for n in names if n not in chans]
+    if missing:
+        raise ValueError(f"{path}: {field} needs channels {missing}, which are missing; the "
+                         f"file has {sorted(chans)}")
+    return np.stack([chans[n] for n in names], -1)
+
+
+@dataclasses.dataclass(frozen=True)
+class ImportSpec:
+    """How to read an external renderer's EXR sequence (also loadable from a JSON
+    sidecar with these keys)."""
+    color: tuple = ("R", "G", "B")
+    depth: str = "Z"
+    motion: tuple = ("motion.X", "motion.Y")
+    target_color: tuple = ("R", "G", "B")
+    motion_units: str = "pixels"     # pixels | uv | ndc
+    motion_y_up: bool = False
+    motion_negate: bool = False      # the source stores current minus previous position
+    depth_kind: str = "device"       # device | reversed | linear | view
+    near: float = 0.1
+    far: float = 100.0
+    jitter: object = "thesis"        # "thesis", a list of [x, y] per frame, or one [x, y]
+    jitter_kind: str = "unit"        # unit [0,1) | centered [-0.5, 0.5)
+    jitter_y_up: bool = False
+
+    @classmethod
+    def from_json(cls, path):
+        with open(path) as fh:
+            data = json.load(fh)
+        fields = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - fields)
+        if unknown:
+            raise ValueError(f"{path}: unknown keys {unknown}; expected some of {sorted(fields)}")
+        data = {k: tuple(v) if isinstance(v, list) and k in ("color", "motion", "target_color")
+                else v for k, v in data.items()}
+        return cls(**data)
+
+
+def _frames(folder):
+    if not os.path.isdir(folder):
+        raise FileNotFoundError(f"{folder}: no such folder")
+    files = sorted(f for f in os.listdir(folder) if f.lower().endswith(".exr"))
+    if not files:
+        raise ValueError(f"{folder}: no .exr files")
+    return [os.path.join(folder, f) for f in files]
+
+
+def _jitters(spec, n, factor):
+    from jtus.sampling import jitter_sequence
+
+    if isinstance(spec.jitter, str):
+        if spec.jitter != "thesis":
+            raise ValueError(f"jitter: expected 'thesis' or numbers, got {spec.jitter!r}")
+        seq = jitter_sequence("thesis", factor)
+        return np.stack([seq[t % len(seq)] for t in range(n)])
+    j = np.asarray(spec.jitter, dtype=np.float64)
+    if j.shape == (2,):
+        j = np.broadcast_to(j, (n, 2))
+    if j.shape != (n, 2):
+        raise ValueError(f"jitter: expected one [x, y] or {n} of them, got shape {j.shape}")
+    return conventions.jitter_to_jtus(j, spec.jitter_kind, spec.jitter_y_up)
+
+
+def load_sequence(input_dir, target_dir, factor, spec: ImportSpec = ImportSpec()):
+    """Read an EXR sequence into the ``jtus.sim.video`` dict layout (one factor)."""
+    inputs, targets = _frames(input_dir), _frames(target_dir)
+    if len(inputs) != len(targets):
+        raise ValueError(f"{input_dir} has {len(inputs)} frames but {target_dir} has "
+                         f"{len(targets)}")
+    cols = {"color": [], "depth": [], "motion": [], "target": []}
+    shape = None
+    for fin, ftg in zip(inputs, targets):
+        ch, _ = read_exr(fin)
+        color = _pick(ch, spec.color, fin, "color")
+        h, w = color.shape[:2]
+        if shape is None:
+            shape = (h, w)
+        elif (h, w) != shape:
+            raise ValueError(f"{fin}: size {h}x{w} differs from the first frame's "
+                             f"{shape[0]}x{shape[1]}")
+        depth = _pick(ch, (spec.depth,), fin, "depth")
+        depth = conventions.depth_to_device(depth, spec.depth_kind, spec.near, spec.far)
+        motion = conventions.motion_to_jtus(_pick(ch, spec.motion, fin, "motion"), w, h,
+                                            spec.motion_units, spec.motion_y_up,
+                                            spec.motion_negate)
+        tch, _ = read_exr(ftg)
+        target = _pick(tch, spec.target_color, ftg, "target")
+        if target.shape[:2] != (h * factor, w * factor):
+            raise ValueError(f"{ftg}: target size {target.shape[0]}x{target.shape[1]} is not "
+                             f"factor {factor} x the input's {h}x{w}")
+        for k, v in (("color", color), ("depth", depth), ("motion", motion), ("target", target)):
+            cols[k].append(v.astype(np.float32))
+    n = len(inputs)
+    return {"target": np.stack(cols["target"]),
+            "reset": np.arange(n) == 0,
+            f"x{factor}": {"color": np.stack(cols["color"]), "depth": np.stack(cols["depth"]),
+                           "motion": np.stack(cols["motion"]),
+                           "jitter": _jitters(spec, n, factor).astype(np.float32)}}
+
+
+def import_exr(input_dir, target_dir, factor, out, spec: ImportSpec = ImportSpec(),
+               split="test", name="video_00"):
+    """Write an EXR sequence as a one-video jtus HDF5 dataset (atomically)."""
+    import h5py
+
+    from jtus.data import dataset
+
+    video = load_sequence(input_dir, target_dir, factor, spec)
+    T, H, W, _ = video["target"].shape
+    with dataset.atomic_path(out) as tmp, h5py.File(tmp, "w") as fh:
+        dataset._root_attrs(fh, (H, W), (factor,), spp=0, spp_match=1)
+        g = fh.create_group(f"{split}/{name}")
+        g.attrs.update({"scene": f"exr:{os.path.abspath(input_dir)}", "effects": "[]",
+                        "length": T, "index": 0})
+        dataset.write_video(g, video, (factor,), 1)
+    return out
+
+
+def _srgb(x):
+    x = np.clip(x, 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+
+
+def write_sequence(frames, folder, fmt="exr", prefix="frame", srgb=True):
+    """Write ``[T,H,W,3]`` linear RGB frames as ``folder/{prefix}{t:04d}.{fmt}``. PNGs
+    are 8-bit, sRGB-encoded unless ``srgb=False``. Returns the paths."""
+    from PIL import Image
+
+    if fmt not in IMAGE_FORMATS:
+        raise ValueError(f"fmt: expected one of {IMAGE_FORMATS}, got {fmt!r}")
+    frames = np.asarray(frames)
+    if frames.ndim != 4 or frames.shape[-1] != 3:
+        raise ValueError(f"frames: expected [T,H,W,3], got shape {frames.shape}")
+    os.makedirs(folder, exist_ok=True)
+    paths = []
+    for t, img in enumerate(frames):
+        path = os.path.join(folder, f"{prefix}{t:04d}.{fmt}")
+        if fmt == "exr":
+            write_exr(path, {c: img[..., i] for i, c in enumerate("RGB")})
+        else:
+            v = _srgb(img) if srgb else np.clip(img, 0, 1)
+            Image.fromarray(np.round(v * 255).astype(np.uint8)).save(path)
+        paths.append(path)
+    return paths

@@ -1,0 +1,267 @@
+"""A ray caster of analytic primitives, assembled from the effects a scene declares.
+
+``make_renderer(scene)`` returns a jitted ``render(state, xy, pixel_angle)`` that casts
+one ray per screen position ``xy [N,2]`` (normalized, x right and y down in [0,1]) and
+returns linear RGB ``[N,3]``, device depth ``[N,1]`` and, with ``motion=True``, the
+backward motion ``[N,2]`` in normalized screen units. Which code is traced is decided
+by ``scene.effects`` at build time: no shadow rays without ``shadows``, no texture
+filter without ``texture_detail``, no specular lobe without ``specular``, no per-object
+previous poses without ``object_motion``, and so on.
+
+Camera: a pinhole looking along ``forward``; the ray through ``xy`` is
+``forward + (2x-1) tan_x right + (1-2y) tan_y up``, so the ray parameter of a hit is
+its view depth z, and device depth is D3D's ``far/(far-near) (1 - near/z)``.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jtus.sim import textures
+from jtus.sim.paths import FrameState
+from jtus.sim.scene import TEXTURES, Scene
+
+_EPS = 1e-4
+_INF = jnp.inf
+
+
+def state_arrays(state: FrameState):
+    """The jnp pytree the jitted renderer takes (everything but the cut flag)."""
+    cam = lambda c: {k: jnp.asarray(v, jnp.float32) for k, v in c._asdict().items()}  # noqa: E731
+    return {"camera": cam(state.camera), "prev_camera": cam(state.prev_camera),
+            "obj_pos": jnp.asarray(state.obj_pos, jnp.float32),
+            "obj_yaw": jnp.asarray(state.obj_yaw, jnp.float32),
+            "prev_obj_pos": jnp.asarray(state.prev_obj_pos, jnp.float32),
+            "prev_obj_yaw": jnp.asarray(state.prev_obj_yaw, jnp.float32),
+            "light": jnp.asarray(state.light, jnp.float32),
+            "emission": jnp.asarray(state.emission, jnp.float32)}
+
+
+def _to_object(p, yaw):
+    """World offset p [...,3] into object space for yaw [...]: R(yaw)^T p."""
+    c, s = jnp.cos(yaw), jnp.sin(yaw)
+    return jnp.stack([c * p[..., 0] - s * p[..., 2], p[..., 1], s * p[..., 0] + c * p[..., 2]], -1)
+
+
+def _to_world(p, yaw):
+    c, s = jnp.cos(yaw), jnp.sin(yaw)
+    return jnp.stack([c * p[..., 0] + s * p[..., 2], p[..., 1], -s * p[..., 0] + c * p[..., 2]], -1)
+
+
+def _safe(x):
+    return jnp.where(jnp.abs(x) < 1e-12, 1e-12, x)
+
+
+def _t_plane(o, d, size):
+    t = -o[..., 1] / _safe(d[..., 1])
+    x = o[..., 0] + t * d[..., 0]
+    z = o[..., 2] + t * d[..., 2]
+    ok = (t > _EPS) & (jnp.abs(x) <= size[..., 0]) & (jnp.abs(z) <= size[..., 2])
+    return jnp.where(ok, t, _INF)
+
+
+def _t_box(o, d, size):
+    inv = 1.0 / _safe(d)
+    t1, t2 = (-size - o) * inv, (size - o) * inv
+    tmin = jnp.max(jnp.minimum(t1, t2), -1)
+    tmax = jnp.min(jnp.maximum(t1, t2), -1)
+    t = jnp.where(tmin > _EPS, tmin, tmax)
+    return jnp.where((tmax >= tmin) & (t > _EPS), t, _INF)
+
+
+def _quadratic(a, b, c):
+    disc = b * b - a * c
+    sq = jnp.sqrt(jnp.maximum(disc, 0.0))
+    t0, t1 = (-b - sq) / _safe(a), (-b + sq) / _safe(a)
+    t = jnp.where(t0 > _EPS, t0, t1)
+    return jnp.where((disc >= 0) & (t > _EPS), t, _INF)
+
+
+def _t_sphere(o, d, size):
+    r = size[..., 0]
+    return _quadratic((d * d).sum(-1), (o * d).sum(-1), (o * o).sum(-1) - r * r)
+
+
+def _t_rod(o, d, size):
+    r, hh = size[..., 0], size[..., 1]
+    a = d[..., 0] ** 2 + d[..., 2] ** 2
+    b = o[..., 0] * d[..., 0] + o[..., 2] * d[..., 2]
+    c = o[..., 0] ** 2 + o[..., 2] ** 2 - r * r
+    t = _quadratic(a, b, c)
+    y = o[..., 1] + t * d[..., 1]
+    return jnp.where(jnp.abs(y) <= hh, t, _INF)
+
+
+_T_FNS = {"plane": _t_plane, "box": _t_box, "sphere": _t_sphere, "rod": _t_rod}
+
+
+class _Static:
+    """Per-object constants of the visible objects, grouped by kind."""
+
+    def __init__(self, scene: Scene):
+        vis = [(i, o) for i, o in enumerate(scene.objects)
+               if o.kind != "rod" or scene.has("thin_geometry")]
+        self.index = np.array([i for i, _ in vis], np.int32)
+        objs = [o for _, o in vis]
+        self.kinds = [k for k in ("plane", "box", "sphere", "rod")
+                      if any(o.kind == k for o in objs)]
+        order = [j for k in self.kinds for j, o in enumerate(objs) if o.kind == k]
+        self.index = self.index[order]
+        objs = [objs[j] for j in order]
+        self.objs = objs
+        self.groups = {}
+        start = 0
+        for k in self.kinds:
+            n = sum(o.kind == k for o in objs)
+            self.groups[k] = (start, start + n)
+            start += n
+        size = np.array([o.size for o in objs], np.float32).reshape(-1, 3)
+        size[:, 0] = np.where([o.kind == "plane" and o.size[0] <= 0 for o in objs], 1e6, size[:, 0])
+        size[:, 2] = np.where([o.kind == "plane" and o.size[2] <= 0 for o in objs], 1e6, size[:, 2])
+        self.size = size
+        self.kind_id = np.array([("plane", "box", "sphere", "rod").index(o.kind) for o in objs],
+                                np.int32)
+        m = [o.material for o in objs]
+        self.color = np.array([x.color for x in m], np.float32).reshape(-1, 3)
+        self.tex = np.array([TEXTURES.index(x.texture) for x in m], np.int32)
+        self.tex_scale = np.array([x.texture_scale for x in m], np.float32)
+        self.spec = np.array([x.specular for x in m], np.float32)
+        self.shine = np.array([x.shininess for x in m], np.float32)
+
+
+def _intersect(st: _Static, o, d, pos, yaw, any_hit_before=None):
+    """Nearest hit: ``(t [N], object [N])`` (t = inf where nothing is hit); or, with
+    ``any_hit_before [N]``, a bool [N]: something is hit closer than that."""
+    ts = []
+    for k in st.kinds:
+        a, b = st.groups[k]
+        po, yo = pos[a:b], yaw[a:b]
+        oo = _to_object(o[:, None, :] - po[None], yo[None])
+        do = _to_object(jnp.broadcast_to(d[:, None, :], oo.shape), yo[None])
+        ts.append(_T_FNS[k](oo, do, jnp.asarray(st.size[a:b])[None]))
+    t_all = jnp.concatenate(ts, -1)
+    if any_hit_before is not None:
+        return jnp.any(t_all < any_hit_before[:, None], -1)
+    return jnp.min(t_all, -1), jnp.argmin(t_all, -1)
+
+
+def _normal_uv(st: _Static, p_obj, obj):
+    """Object-space normal and texture coordinates at object-space points."""
+    kind = jnp.asarray(st.kind_id)[obj]
+    size = jnp.asarray(st.size)[obj]
+    n_plane = jnp.broadcast_to(jnp.asarray([0.0, 1.0, 0.0]), p_obj.shape)
+    rel = jnp.abs(p_obj) / jnp.maximum(size, 1e-6)
+    axis = jnp.argmax(rel, -1)
+    n_box = jax.nn.one_hot(axis, 3) * jnp.sign(jnp.take_along_axis(p_obj, axis[:, None], -1))
+    n_sph = p_obj / jnp.maximum(jnp.linalg.norm(p_obj, axis=-1, keepdims=True), 1e-9)
+    radial = p_obj * jnp.asarray([1.0, 0.0, 1.0])
+    n_rod = radial / jnp.maximum(jnp.linalg.norm(radial, axis=-1, keepdims=True), 1e-9)
+    n = jnp.select([kind[:, None] == i for i in range(4)], [n_plane, n_box, n_sph, n_rod])
+    dom = jnp.argmax(jnp.abs(n), -1)
+    u = jnp.where(dom == 0, p_obj[:, 2], p_obj[:, 0])
+    v = jnp.where(dom == 1, p_obj[:, 2], p_obj[:, 1])
+    return n, u, v
+
+
+def _project(cam, x, direction=False):
+    """Normalized screen position of world points (or directions) under a camera."""
+    q = x if direction else x - cam["eye"]
+    z = jnp.maximum((q * cam["forward"]).sum(-1), 1e-6)
+    sx = (q * cam["right"]).sum(-1) / (z * cam["tan_half"][0])
+    sy = (q * cam["up"]).sum(-1) / (z * cam["tan_half"][1])
+    return jnp.stack([(sx + 1) / 2, (1 - sy) / 2], -1)
+
+
+def make_renderer(scene: Scene, motion: bool = True):
+    """The jitted ``render(state, xy [N,2], pixel_angle) -> dict`` for this scene.
+
+    ``pixel_angle`` is the texture filter's footprint in radians per sample (the
+    mip bias is folded into it). The dict holds ``color [N,3]`` (clamped to [0,1]),
+    ``depth [N,1]`` and, with ``motion``, ``motion [N,2]`` (normalized units).
+    """
+    st = _Static(scene)
+    has = scene.has
+    tex_kinds = sorted({TEXTURES[t] for t in st.tex if t != 0}) if has("texture_detail") else []
+    near, far = scene.near, scene.far
+    horizon, zenith = (jnp.asarray(c, jnp.float32) for c in scene.sky)
+    light = scene.light
+
+    def render(state, xy, pixel_angle):
+        cam = state["camera"]
+        pos = state["obj_pos"][st.index]
+        yaw = state["obj_yaw"][st.index]
+        sx = 2 * xy[:, 0:1] - 1
+        sy = 1 - 2 * xy[:, 1:2]
+        d = cam["forward"] + sx * cam["tan_half"][0] * cam["right"] + sy * cam["tan_half"][1] * cam["up"]
+        o = jnp.broadcast_to(cam["eye"], d.shape)
+        t, obj = _intersect(st, o, d, pos, yaw)
+        hit = jnp.isfinite(t)
+        t_safe = jnp.where(hit, t, 1.0)
+        x = o + t_safe[:, None] * d
+        p_obj = _to_object(x - pos[obj], yaw[obj])
+        n_obj, u, v = _normal_uv(st, p_obj, obj)
+        n = _to_world(n_obj, yaw[obj])
+        dn = d / jnp.linalg.norm(d, axis=-1, keepdims=True)
+        n = jnp.where((n * dn).sum(-1, keepdims=True) > 0, -n, n)
+        albedo = jnp.asarray(st.color)[obj]
+        if tex_kinds:
+            cos = jnp.maximum(jnp.abs((n * dn).sum(-1)), 0.25)
+            dist = t_safe * jnp.linalg.norm(d, axis=-1)
+            scale = jnp.asarray(st.tex_scale)[obj]
+            width = dist * pixel_angle / cos * scale
+            tex_id = jnp.asarray(st.tex)[obj]
+            value = jnp.ones_like(u)
+            for name in tex_kinds:
+                tv = textures.TEXTURE_FNS[name](u * scale, v * scale, width)
+                value = jnp.where(tex_id == TEXTURES.index(name), tv, value)
+            albedo = albedo * (0.15 + 0.85 * value[:, None])
+        lv = state["light"]
+        if light.kind == "directional":
+            ldir = jnp.broadcast_to(-lv / jnp.linalg.norm(lv), x.shape)
+            ldist = jnp.full(t.shape, _INF)
+            intensity = 1.0
+        else:
+            to_l = lv - x
+            ldist = jnp.linalg.norm(to_l, axis=-1)
+            ldir = to_l / ldist[:, None]
+            intensity = (20.0 / (1.0 + ldist * ldist))[:, None]
+        lcol = jnp.asarray(light.color, jnp.float32) * intensity
+        diffuse = jnp.maximum((n * ldir).sum(-1, keepdims=True), 0.0)
+        vis = 1.0
+        if has("shadows"):
+            occluded = _intersect(st, x + 1e-3 * n, ldir, pos, yaw, any_hit_before=ldist)
+            vis = jnp.where(occluded, 0.0, 1.0)[:, None]
+        color = albedo * (light.ambient + lcol * diffuse * vis)
+        if has("specular"):
+            h = ldir - dn
+            h = h / jnp.maximum(jnp.linalg.norm(h, axis=-1, keepdims=True), 1e-9)
+            lobe = jnp.maximum((n * h).sum(-1), 0.0) ** jnp.asarray(st.shine)[obj]
+            color = color + (jnp.asarray(st.spec)[obj] * lobe)[:, None] * lcol * vis
+        if has("emissive_flicker"):
+            color = color + state["emission"][st.index][obj][:, None] * jnp.asarray(st.color)[obj]
+        sky = horizon + (zenith - horizon) * jnp.clip(dn[:, 1:2], 0.0, 1.0)
+        out = {"color": jnp.clip(jnp.where(hit[:, None], color, sky), 0.0, 1.0)}
+        z = jnp.maximum(t_safe, near)
+        out["depth"] = jnp.where(hit, jnp.clip(far / (far - near) * (1 - near / z), 0, 1), 1.0)[:, None]
+        if motion:
+            if has("object_motion"):
+                ppos = state["prev_obj_pos"][st.index][obj]
+                pyaw = state["prev_obj_yaw"][st.index][obj]
+                x_prev = _to_world(p_obj, pyaw) + ppos
+            else:
+                x_prev = x
+            prev = state["prev_camera"]
+            moved = _project(prev, x_prev)
+            moved_sky = _project(prev, dn, direction=True)
+            out["motion"] = jnp.where(hit[:, None], moved, moved_sky) - xy
+        return out
+
+    return jax.jit(render)
+
+
+def pixel_angle(camera_tan_half_y, height_hr, spp_match=1):
+    """Texture footprint per sample: one HR pixel's angle over sqrt(spp_match); the
+    input's mip bias of eq. 47 and the target's level both reduce to this."""
+    return 2.0 * float(camera_tan_half_y) / height_hr / np.sqrt(spp_match)

@@ -1,0 +1,147 @@
+"""Scene specifications: what a scene holds and which effects it exhibits.
+
+A scene declares its ``effects``; the renderer (``jtus.sim.render``) assembles and
+compiles the code of those effects only, and ignores the parameters of undeclared
+ones (a texture on an object of a scene without ``texture_detail`` renders as its
+flat base colour; a rod in a scene without ``thin_geometry`` is not there).
+
+Specs are frozen dataclasses that round-trip through JSON (``to_json`` /
+``from_json``). World space: y up, metres; object yaw is a rotation about +y.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from typing import Optional
+
+EFFECTS = ("camera_motion", "object_motion", "thin_geometry", "texture_detail", "shadows",
+           "specular", "moving_light", "emissive_flicker", "camera_cut")
+KINDS = ("plane", "box", "sphere", "rod")
+TEXTURES = ("none", "checker", "stripes", "zoneplate")
+PATHS = ("orbit", "dolly", "pan")
+
+
+@dataclasses.dataclass(frozen=True)
+class Material:
+    color: tuple = (0.7, 0.7, 0.7)       # linear RGB albedo
+    texture: str = "none"                 # used only with texture_detail
+    texture_scale: float = 1.0            # texture periods per metre
+    specular: float = 0.0                 # Blinn-Phong weight, used only with specular
+    shininess: float = 32.0
+    emission: float = 0.0                 # peak emitted radiance, used only with emissive_flicker
+    flicker_hz: float = 3.0               # flicker rate in cycles per second (30 fps frames)
+
+
+@dataclasses.dataclass(frozen=True)
+class Object:
+    kind: str                             # plane | box | sphere | rod
+    position: tuple = (0.0, 0.0, 0.0)
+    size: tuple = (1.0, 1.0, 1.0)         # plane: (half x, -, half z); box: half extents;
+                                          # sphere: (radius, -, -); rod: (radius, half height, -)
+    yaw: float = 0.0                      # radians about +y
+    material: Material = Material()
+    velocity: tuple = (0.0, 0.0, 0.0)     # metres per frame, used only with object_motion
+    spin: float = 0.0                     # radians per frame about +y, likewise
+    bob: float = 0.0                      # vertical oscillation amplitude in metres, likewise
+
+
+@dataclasses.dataclass(frozen=True)
+class Light:
+    kind: str = "directional"             # directional | point
+    vector: tuple = (-0.4, -1.0, -0.3)    # direction the light travels, or the point's position
+    color: tuple = (1.0, 0.97, 0.9)
+    ambient: float = 0.25
+    orbit_speed: float = 0.05             # radians per frame, used only with moving_light
+
+
+@dataclasses.dataclass(frozen=True)
+class Path:
+    kind: str = "orbit"                   # orbit | dolly | pan
+    center: tuple = (0.0, 0.5, 0.0)       # orbit / pan look-at centre
+    radius: float = 6.0
+    height: float = 2.0
+    speed: float = 0.02                   # radians (orbit, pan) or metres (dolly) per frame
+    speed_variation: float = 0.5          # relative amplitude of the slow speed change
+    holds: int = 1                        # stationary holds per video
+    hold_frames: int = 8
+    cut_every: int = 24                   # frames between cuts, used only with camera_cut
+    fov_y: float = 0.9                    # radians
+
+
+@dataclasses.dataclass(frozen=True)
+class Scene:
+    name: str
+    effects: tuple
+    objects: tuple
+    light: Light = Light()
+    path: Path = Path()
+    sky: tuple = ((0.75, 0.8, 0.9), (0.3, 0.45, 0.75))  # horizon, zenith
+    near: float = 0.1
+    far: float = 100.0
+
+    def __post_init__(self):
+        bad = [e for e in self.effects if e not in EFFECTS]
+        if bad:
+            raise ValueError(f"effects: unknown {bad}; expected a subset of {EFFECTS}")
+        if len(set(self.effects)) != len(self.effects):
+            raise ValueError(f"effects: duplicates in {self.effects}")
+        for i, o in enumerate(self.objects):
+            if o.kind not in KINDS:
+                raise ValueError(f"objects[{i}].kind: expected one of {KINDS}, got {o.kind!r}")
+            if o.material.texture not in TEXTURES:
+                raise ValueError(f"objects[{i}].material.texture: expected one of {TEXTURES}, "
+                                 f"got {o.material.texture!r}")
+        if self.path.kind not in PATHS:
+            raise ValueError(f"path.kind: expected one of {PATHS}, got {self.path.kind!r}")
+        if self.light.kind not in ("directional", "point"):
+            raise ValueError(f"light.kind: expected directional or point, got {self.light.kind!r}")
+        if not 0 < self.near < self.far:
+            raise ValueError(f"near/far: expected 0 < near < far, got {self.near}, {self.far}")
+
+    def has(self, effect: str) -> bool:
+        return effect in self.effects
+
+    def visible_objects(self):
+        """The objects the renderer intersects: rods only with thin_geometry."""
+        return tuple(o for o in self.objects if o.kind != "rod" or self.has("thin_geometry"))
+
+
+def _build(cls, data, where):
+    if not isinstance(data, dict):
+        raise ValueError(f"{where}: expected an object, got {type(data).__name__}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise ValueError(f"{where}: unknown keys {unknown}; expected some of {sorted(fields)}")
+    kw = {}
+    for k, v in data.items():
+        if k == "material":
+            v = _build(Material, v, f"{where}.material")
+        elif k == "light":
+            v = _build(Light, v, f"{where}.light")
+        elif k == "path":
+            v = _build(Path, v, f"{where}.path")
+        elif k == "objects":
+            v = tuple(_build(Object, o, f"{where}.objects[{i}]") for i, o in enumerate(v))
+        elif isinstance(v, list):
+            v = tuple(tuple(x) if isinstance(x, list) else x for x in v)
+        kw[k] = v
+    return cls(**kw)
+
+
+def from_dict(data) -> Scene:
+    return _build(Scene, data, "scene")
+
+
+def from_json(text_or_path) -> Scene:
+    """A scene from JSON text or a path to a ``.json`` file."""
+    text = str(text_or_path)
+    if not text.lstrip().startswith("{"):
+        with open(text) as fh:
+            text = fh.read()
+    return from_dict(json.loads(text))
+
+
+def to_json(scene: Scene) -> str:
+    return json.dumps(dataclasses.asdict(scene), indent=1)

@@ -1,0 +1,198 @@
+"""HDF5 datasets, EXR import/export, atomic writes, and the data/sim CLIs."""
+
+import os
+
+import h5py
+import numpy as np
+import pytest
+
+from jtus import sim
+from jtus.data import __main__ as data_cli
+from jtus.data import conventions, dataset, exr
+from jtus.sim import __main__ as sim_cli
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    path = tmp_path_factory.mktemp("data") / "tiny.h5"
+    dataset.generate("tiny", path, progress=False)
+    return path
+
+
+def test_layout_and_round_trip(tiny):
+    with h5py.File(tiny, "r") as fh:
+        assert fh.attrs["format"] == "jtus-dataset" and fh.attrs["version"] == 1
+        assert fh.attrs["spp"] == 4 and "motion" in fh.attrs["conventions"]
+        g = fh["train/camera_orbit_00"]
+        assert g.attrs["scene"] == "camera_orbit" and "camera_motion" in g.attrs["effects"]
+        assert g["target"].shape == (8, 32, 32, 3) and g["x4/color"].shape == (8, 8, 8, 3)
+        assert g["x2/motion"].shape == (8, 16, 16, 2) and g["x4/jitter"].shape == (8, 2)
+        assert g["x4"].attrs["mip_bias"] == -2.0  # eq. 47 at f=4 matching 1 spp
+        stored = {k: g[f"x4/{k}"][:] for k in ("color", "depth", "motion", "jitter")}
+        target = g["target"][:]
+    ref = sim.render_video(sim.get_scene("camera_orbit"), "train", 0, 8, size=(32, 32),
+                           factors=(2, 4), spp=4)
+    np.testing.assert_array_equal(target, ref["target"].astype(np.float16))
+    np.testing.assert_array_equal(stored["color"], ref["x4"]["color"].astype(np.float16))
+    for k in ("depth", "motion", "jitter"):
+        np.testing.assert_array_equal(stored[k], ref["x4"][k])
+
+
+def test_crops_are_aligned(tiny):
+    with dataset.Dataset(tiny) as ds:
+        frames, targets, index = ds.crops("train", 4, 3, 5, 16, np.random.default_rng(1),
+                                          return_index=True)
+        assert frames.color.shape == (5, 3, 4, 4, 3) and targets.shape == (5, 3, 16, 16, 3)
+        assert frames.reset[0].all()
+        for b, (name, t0, y, x) in enumerate(index):
+            full, tgt = ds.video("train", name, 4)
+            ts = slice(t0, t0 + 5)
+            np.testing.assert_array_equal(frames.color[:, b], full.color[ts, 0, y:y + 4, x:x + 4])
+            np.testing.assert_array_equal(frames.motion[:, b], full.motion[ts, 0, y:y + 4, x:x + 4])
+            np.testing.assert_array_equal(frames.jitter[:, b], full.jitter[ts, 0])
+            np.testing.assert_array_equal(targets[:, b],
+                                          tgt[ts, 0, 4 * y:4 * y + 16, 4 * x:4 * x + 16])
+        with pytest.raises(ValueError, match="crop"):
+            ds.crops("train", 4, 1, 2, 18, np.random.default_rng(0))
+        with pytest.raises(ValueError, match="factor"):
+            ds.crops("train", 3, 1, 2, 12, np.random.default_rng(0))
+
+
+def test_generate_is_deterministic(tiny, tmp_path):
+    again = tmp_path / "again.h5"
+    dataset.generate("tiny", again, progress=False)
+
+    def contents(path):
+        out = {}
+        with h5py.File(path, "r") as fh:
+            fh.visititems(lambda k, v: out.__setitem__(k, v[()].tobytes())
+                          if isinstance(v, h5py.Dataset) else None)
+        return out
+
+    assert contents(again) == contents(tiny)
+
+
+def test_interrupted_generate_leaves_no_file(tmp_path, monkeypatch):
+    from jtus.sim import video
+
+    calls = []
+    real = video.VideoRenderer.video
+
+    def interrupted(self, *args, **kw):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(self, *args, **kw)
+
+    monkeypatch.setattr(video.VideoRenderer, "video", interrupted)
+    out = tmp_path / "sub" / "data.h5"
+    with pytest.raises(KeyboardInterrupt):
+        dataset.generate("tiny", out, progress=False)
+    assert not out.exists()
+    assert os.listdir(tmp_path / "sub") == []
+
+
+def test_dataset_errors(tmp_path):
+    with pytest.raises(FileNotFoundError, match="generate it"):
+        dataset.Dataset(tmp_path / "missing.h5")
+    bad = tmp_path / "bad.h5"
+    bad.write_bytes(b"garbage")
+    with pytest.raises(ValueError, match="not a readable HDF5"):
+        dataset.Dataset(bad)
+    other = tmp_path / "other.h5"
+    with h5py.File(other, "w") as fh:
+        fh.attrs["format"] = "something-else"
+    with pytest.raises(ValueError, match="format"):
+        dataset.Dataset(other)
+
+
+def _exr_sequence(tmp_path, video, factor):
+    """Write a rendered video as an external renderer might: motion in UV units with
+    y up, pointing previous-to-current; view-space depth under the name 'depth.V'."""
+    lr, hr = tmp_path / "lr", tmp_path / "hr"
+    lr.mkdir()
+    hr.mkdir()
+    near, far = 0.1, 100.0
+    x = video[f"x{factor}"]
+    h, w = x["color"].shape[1:3]
+    for t in range(len(video["target"])):
+        mv = x["motion"][t].astype(np.float64)
+        uv_up = -np.stack([mv[..., 0] / w, -mv[..., 1] / h], -1)
+        view = conventions.view_depth(x["depth"][t, ..., 0].astype(np.float64), near, far)
+        exr.write_exr(lr / f"f{t:03d}.exr", {"R": x["color"][t, ..., 0], "G": x["color"][t, ..., 1],
+                                             "B": x["color"][t, ..., 2], "depth.V": view,
+                                             "vec.u": uv_up[..., 0], "vec.v": uv_up[..., 1]})
+        exr.write_exr(hr / f"f{t:03d}.exr", {c: video["target"][t, ..., i]
+                                             for i, c in enumerate("RGB")})
+    return lr, hr
+
+
+def test_exr_import_converts_conventions(tmp_path):
+    video = sim.render_video(sim.get_scene("objects"), "test", 0, 4, size=(32, 32), factors=(4,),
+                             spp=1)
+    lr, hr = _exr_sequence(tmp_path, video, 4)
+    sidecar = tmp_path / "spec.json"
+    sidecar.write_text('{"depth": "depth.V", "depth_kind": "view", "motion": ["vec.u", "vec.v"],'
+                       ' "motion_units": "uv", "motion_y_up": true, "motion_negate": true}')
+    out = tmp_path / "imported.h5"
+    assert data_cli.main(["import-exr", "--input", str(lr), "--target", str(hr), "--factor", "4",
+                          "--sidecar", str(sidecar), "--out", str(out)]) == 0
+    with dataset.Dataset(out) as ds:
+        frames, targets = ds.video("test", "video_00", 4)
+    x = video["x4"]
+    np.testing.assert_allclose(frames.motion[:, 0], x["motion"], atol=1e-5)
+    np.testing.assert_allclose(frames.depth[:, 0], x["depth"], atol=1e-6)
+    np.testing.assert_array_equal(frames.color[:, 0], x["color"].astype(np.float16))
+    np.testing.assert_array_equal(targets[:, 0], video["target"].astype(np.float16))
+    np.testing.assert_array_equal(frames.jitter[:, 0], x["jitter"])  # thesis 4x4 pattern
+
+
+def test_exr_import_errors(tmp_path, capsys):
+    video = sim.render_video(sim.get_scene("objects"), "test", 0, 2, size=(16, 16), factors=(4,),
+                             spp=1)
+    lr, hr = _exr_sequence(tmp_path, video, 4)
+    out = tmp_path / "x.h5"
+    rc = data_cli.main(["import-exr", "--input", str(lr), "--target", str(hr), "--factor", "4",
+                        "--out", str(out)])
+    assert rc == 2 and not out.exists()
+    err = capsys.readouterr().err
+    assert "depth needs channels ['Z']" in err and "depth.V" in err
+    rc = data_cli.main(["import-exr", "--input", str(lr), "--target", str(hr), "--factor", "2",
+                        "--depth", "depth.V", "--motion", "vec.u,vec.v", "--out", str(out)])
+    assert rc == 2 and "not factor 2" in capsys.readouterr().err
+    (lr / "f000.exr").write_bytes(b"broken")
+    with pytest.raises(ValueError, match="f000.exr: not a readable EXR"):
+        exr.read_exr(lr / "f000.exr")
+
+
+def test_exr_and_png_sequences(tmp_path):
+    frames = np.random.default_rng(0).uniform(size=(2, 5, 7, 3)).astype(np.float32)
+    paths = exr.write_sequence(frames, tmp_path / "e", "exr")
+    chans, _ = exr.read_exr(paths[1])
+    np.testing.assert_array_equal(np.stack([chans[c] for c in "RGB"], -1), frames[1])
+    noncontig = np.ascontiguousarray(frames[0])[:, ::-1]  # FINDINGS: must be made contiguous
+    exr.write_exr(tmp_path / "n.exr", {"R": noncontig[..., 0]})
+    np.testing.assert_array_equal(exr.read_exr(tmp_path / "n.exr")[0]["R"], noncontig[..., 0])
+    pngs = exr.write_sequence(frames, tmp_path / "p", "png")
+    assert len(pngs) == 2 and os.path.getsize(pngs[0]) > 0
+
+
+def test_cli_smoke(tiny, tmp_path, capsys):
+    assert data_cli.main(["info", "--dataset", str(tiny)]) == 0
+    assert "train: 2 videos" in capsys.readouterr().out
+    assert data_cli.main(["export", "--dataset", str(tiny), "--split", "test", "--video",
+                          "objects_00", "--what", "color@4", "--format", "png",
+                          "--out", str(tmp_path / "png")]) == 0
+    assert len(os.listdir(tmp_path / "png")) == 8
+    assert sim_cli.main(["list"]) == 0
+    out = tmp_path / "strip.png"
+    assert sim_cli.main(["preview", "--scene", "thin", "--out", str(out), "--size", "32",
+                         "--frame", "1", "--spp", "1"]) == 0
+    assert out.exists()
+
+
+def test_streaming_source_matches_interface():
+    src = dataset.StreamingSource(["objects"], size=(32, 32), factors=(4,), spp=1)
+    frames, targets = src.crops("train", 4, 2, 3, 16, np.random.default_rng(0))
+    assert frames.color.shape == (3, 2, 4, 4, 3) and targets.shape == (3, 2, 16, 16, 3)
+    assert frames.reset[0].all() and frames.color.dtype == np.float32

@@ -1,0 +1,190 @@
+"""The simulator: motion vectors, jitter, effect gating (cost and pixels), determinism."""
+
+import dataclasses
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jtus import sampling, sim
+from jtus.sim import paths, render
+from jtus.sim.video import VideoRenderer
+
+
+def _moving_frames(video, factor, min_motion=0.3, min_fraction=0.03):
+    """Frames where at least ``min_fraction`` of the pixels move ``min_motion`` LR px."""
+    mv = video[f"x{factor}"]["motion"]
+    ts = [t for t in range(1, len(mv))
+          if np.mean(np.abs(mv[t]).max(-1) > min_motion) > min_fraction and not video["reset"][t]]
+    assert ts, "the test path should move"
+    return ts
+
+
+def _coherent(mv, tol=0.05):
+    """LR pixels whose 3x3 neighbourhood moves alike (to ``tol`` LR px): away from
+    motion discontinuities, hence from disocclusions and bilinear-up-sampling errors."""
+    h, w, _ = mv.shape
+    pad = np.pad(mv, ((1, 1), (1, 1), (0, 0)), mode="edge")
+    nb = np.stack([pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w] for dy in (-1, 0, 1)
+                   for dx in (-1, 0, 1)])
+    return (nb.max(0) - nb.min(0)).max(-1) < tol
+
+
+@pytest.mark.parametrize("layout,motion", [("camera_orbit", "camera_motion"),
+                                           ("objects", "object_motion")])
+def test_motion_vectors_reproject_the_target(layout, motion):
+    """Camera-only and object-only motion, on textured (filtered) surfaces so that
+    frames differ where things move."""
+    scene = dataclasses.replace(sim.get_scene(layout), effects=(motion, "texture_detail"))
+    f, size = 2, 96
+    v = VideoRenderer(scene, (size, size), (f,), spp=4).video("test", 0, 8)
+    up = lambda m: np.repeat(np.repeat(m, f, 0), f, 1)  # noqa: E731
+    checked = 0
+    for t in _moving_frames(v, f):
+        prev, cur = v["target"][t - 1], v["target"][t]
+        mv = v[f"x{f}"]["motion"][t]
+        xy = sampling.pixel_grid(1, size, size) + f * sampling.upsample(jnp.asarray(mv[None]), f)
+        warped, inside = sampling.sample(jnp.asarray(prev[None]), xy, "bilinear",
+                                         return_mask=True)
+        keep = np.asarray(inside)[0, ..., 0] & up(_coherent(mv))
+        moving = keep & up(np.abs(mv).max(-1) > 0.3)
+        err_warp = np.abs(np.asarray(warped)[0] - cur).max(-1)
+        err_none = np.abs(prev - cur).max(-1)
+        # Outside disocclusions the warp reproduces the current target closely ...
+        assert np.percentile(err_warp[keep], 99) < 0.03, t
+        # ... and far better than no warp where things move.
+        if err_none[moving].mean() > 0.01:
+            assert err_warp[moving].mean() < 0.35 * err_none[moving].mean(), t
+            checked += 1
+    assert checked >= 2
+
+
+def test_input_pixel_is_a_single_sample_at_its_jittered_position():
+    r = VideoRenderer(sim.get_scene("everything"), (64, 64), (4,), spp=1)
+    state = paths.timeline(r.scene, "train", 0, 3, 1.0)[2]
+    jitter = np.array([0.3125, 0.8125], np.float32)
+    color, depth, motion = r.input(state, 4, jitter)
+    rng = np.random.default_rng(0)
+    ij = rng.integers(0, 16, size=(20, 2))
+    xy = np.stack([(ij[:, 1] + jitter[0]) / 16, (ij[:, 0] + jitter[1]) / 16], -1)
+    single = r.points(state, xy)
+    np.testing.assert_allclose(np.asarray(single["color"]), color[ij[:, 0], ij[:, 1]], atol=1e-6)
+    np.testing.assert_allclose(np.asarray(single["depth"]), depth[ij[:, 0], ij[:, 1]], atol=1e-6)
+    # ... and not the pixel centre's value everywhere (the jitter is real).
+    centre = r.points(state, (ij[:, ::-1] + 0.5) / 16)
+    assert np.abs(np.asarray(centre["color"]) - color[ij[:, 0], ij[:, 1]]).max() > 1e-3
+
+
+def _flops(scene):
+    fn = render.make_renderer(scene, motion=True)
+    state = render.state_arrays(paths.timeline(scene, "train", 0, 1, 1.0)[0])
+    xy = jnp.zeros((1024, 2), jnp.float32)
+    cost = fn.lower(state, xy, 0.01).compile().cost_analysis()
+    cost = cost[0] if isinstance(cost, (list, tuple)) else cost
+    return cost["flops"]
+
+
+def _without(scene, effect):
+    return dataclasses.replace(scene, effects=tuple(e for e in scene.effects if e != effect))
+
+
+@pytest.mark.parametrize("effect", ["shadows", "texture_detail", "specular", "object_motion",
+                                    "thin_geometry", "emissive_flicker"])
+def test_declared_effects_decide_the_cost(effect):
+    full = sim.get_scene("everything")
+    assert _flops(_without(full, effect)) < _flops(full)
+
+
+def _render(scene, frames=3, size=32):
+    v = VideoRenderer(scene, (size, size), (4,), spp=1).video("train", 0, frames)
+    return np.concatenate([v["target"].ravel(), v["x4"]["color"].ravel(),
+                           v["x4"]["depth"].ravel(), v["x4"]["motion"].ravel()])
+
+
+def _perturb(scene, effect):
+    """The scene with the parameters of ``effect`` changed (they must be ignored when
+    the effect is undeclared)."""
+    objs = scene.objects
+    if effect == "texture_detail":
+        objs = tuple(dataclasses.replace(o, material=dataclasses.replace(
+            o.material, texture="zoneplate", texture_scale=7.0)) for o in objs)
+    elif effect == "thin_geometry":
+        objs = objs + (sim.Object("rod", (0.0, 1.0, 0.0), (0.05, 1.0, 0)),)
+    elif effect == "specular":
+        objs = tuple(dataclasses.replace(o, material=dataclasses.replace(o.material, specular=2.0))
+                     for o in objs)
+    elif effect == "emissive_flicker":
+        objs = tuple(dataclasses.replace(o, material=dataclasses.replace(o.material, emission=3.0))
+                     for o in objs)
+    elif effect == "object_motion":
+        objs = tuple(dataclasses.replace(o, velocity=(0.3, 0.0, 0.1), spin=0.2) for o in objs)
+    scene = dataclasses.replace(scene, objects=objs)
+    if effect == "moving_light":
+        scene = dataclasses.replace(scene, light=dataclasses.replace(scene.light, orbit_speed=0.5))
+    if effect == "camera_motion":
+        scene = dataclasses.replace(scene, path=dataclasses.replace(scene.path, speed=0.3))
+    if effect == "camera_cut":
+        scene = dataclasses.replace(scene, path=dataclasses.replace(scene.path, cut_every=1))
+    return scene
+
+
+@pytest.mark.parametrize("effect", [e for e in sim.EFFECTS if e != "shadows"])
+def test_undeclared_effect_changes_no_pixel(effect):
+    base = sim.Scene("probe", (), sim.get_scene("everything").objects, sim.Light(),
+                     sim.Path("orbit"))
+    reference = _render(base)
+    np.testing.assert_array_equal(_render(_perturb(base, effect)), reference)
+    # Declared, the same change is visible: the comparison above can fail.
+    declared = dataclasses.replace(base, effects=(effect,))
+    assert not np.array_equal(_render(_perturb(declared, effect)), reference)
+
+
+def test_shadows_only_when_declared():
+    base = sim.Scene("probe", (), sim.get_scene("plaza_day").objects, sim.Light(), sim.Path())
+    with_shadows = dataclasses.replace(base, effects=("shadows",))
+    a, b = _render(base), _render(with_shadows)
+    assert not np.array_equal(a, b)
+    assert (b <= a + 1e-7)[: 3 * 32 * 32 * 3].all()  # shadows only darken the target
+
+
+def test_same_seed_same_bytes():
+    a = sim.render_video(sim.get_scene("everything"), "val", 1, 3, size=(32, 32), factors=(4,))
+    b = sim.render_video(sim.get_scene("everything"), "val", 1, 3, size=(32, 32), factors=(4,))
+    assert a["target"].tobytes() == b["target"].tobytes()
+    for k in ("color", "depth", "motion", "jitter"):
+        assert a["x4"][k].tobytes() == b["x4"][k].tobytes()
+    c = sim.render_video(sim.get_scene("everything"), "val", 2, 3, size=(32, 32), factors=(4,))
+    assert c["target"].tobytes() != a["target"].tobytes()
+
+
+def test_splits_use_different_paths():
+    scene = sim.get_scene("camera_orbit")
+    eyes = {s: paths.timeline(scene, s, 0, 1, 1.0)[0].camera.eye for s in paths.SPLITS}
+    assert not np.allclose(eyes["train"], eyes["test"])
+    assert not np.allclose(eyes["val"], eyes["test"])
+
+
+def test_camera_cut_sets_reset():
+    v = sim.render_video(sim.get_scene("cuts"), "train", 0, 22, size=(16, 16), factors=(4,),
+                         spp=1)
+    assert v["reset"][0] and v["reset"][20] and v["reset"].sum() == 2
+
+
+def test_scene_json_round_trip_and_errors(tmp_path):
+    scene = sim.get_scene("plaza_day")
+    path = tmp_path / "scene.json"
+    path.write_text(sim.to_json(scene))
+    assert sim.from_json(path) == scene
+    assert sim.from_json(sim.to_json(scene)) == scene
+    with pytest.raises(ValueError, match="effects"):
+        sim.from_json('{"name": "x", "effects": ["bloom"], "objects": []}')
+    with pytest.raises(ValueError, match=r"objects\[0\].kind"):
+        sim.from_json('{"name": "x", "effects": [], "objects": [{"kind": "torus"}]}')
+    with pytest.raises(ValueError, match="unknown keys"):
+        sim.from_json('{"name": "x", "effects": [], "objects": [], "colour": 1}')
+
+
+def test_suite_covers_every_effect_alone():
+    alone = {sim.get_scene(n).effects[0] for n in sim.SCENES if len(sim.get_scene(n).effects) == 1}
+    assert len(sim.SCENES) >= 8
+    assert set(sim.EFFECTS) - alone <= {"moving_light"}  # moving light is shown with shadows
