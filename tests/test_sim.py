@@ -35,26 +35,38 @@ def _coherent(mv, tol=0.05):
 def test_motion_vectors_reproject_the_target(layout, motion):
     """Camera-only and object-only motion, on textured (filtered) surfaces so that
     frames differ where things move."""
-    scene = dataclasses.replace(sim.get_scene(layout), effects=(motion, "texture_detail"))
+    base = sim.get_scene(layout)
+    scene = dataclasses.replace(base, effects=(motion, "texture_detail"),
+                                path=dataclasses.replace(base.path, speed=0.05, holds=0))
     f, size = 2, 96
     v = VideoRenderer(scene, (size, size), (f,), spp=4).video("test", 0, 8)
     up = lambda m: np.repeat(np.repeat(m, f, 0), f, 1)  # noqa: E731
     checked = 0
+
+    def warp_error(prev, cur, mv):
+        xy = sampling.pixel_grid(1, size, size) + f * sampling.upsample(jnp.asarray(mv[None]), f)
+        warped, inside = sampling.sample(jnp.asarray(prev[None]), xy, "catmull_rom",
+                                         return_mask=True)
+        return np.abs(np.asarray(warped)[0] - cur).max(-1), np.asarray(inside)[0, ..., 0]
+
     for t in _moving_frames(v, f):
         prev, cur = v["target"][t - 1], v["target"][t]
         mv = v[f"x{f}"]["motion"][t]
-        xy = sampling.pixel_grid(1, size, size) + f * sampling.upsample(jnp.asarray(mv[None]), f)
-        warped, inside = sampling.sample(jnp.asarray(prev[None]), xy, "bilinear",
-                                         return_mask=True)
-        keep = np.asarray(inside)[0, ..., 0] & up(_coherent(mv))
+        err_warp, inside = warp_error(prev, cur, mv)
+        keep = inside & up(_coherent(mv))
         moving = keep & up(np.abs(mv).max(-1) > 0.3)
-        err_warp = np.abs(np.asarray(warped)[0] - cur).max(-1)
         err_none = np.abs(prev - cur).max(-1)
-        # Outside disocclusions the warp reproduces the current target closely ...
-        assert np.percentile(err_warp[keep], 99) < 0.03, t
-        # ... and far better than no warp where things move.
+        # Outside disocclusions the warp reproduces the current target closely (what is
+        # left is resampling a supersampled, textured target) ...
+        assert np.percentile(err_warp[keep], 99) < 0.05, t
+        # Where the moving content has detail (not flat sky or walls):
         if err_none[moving].mean() > 0.01:
+            # far better than no warp ...
             assert err_warp[moving].mean() < 0.35 * err_none[moving].mean(), t
+            # ... to sub-pixel accuracy: vectors off by a quarter LR pixel do worse.
+            for off in ([0.25, 0.0], [0.0, 0.25]):
+                err_off, _ = warp_error(prev, cur, mv + np.array(off, np.float32))
+                assert err_warp[moving].mean() < 0.8 * err_off[moving].mean(), (t, off)
             checked += 1
     assert checked >= 2
 

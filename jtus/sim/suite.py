@@ -21,7 +21,7 @@ def _courtyard():
         Object("sphere", (1.2, 0.7, 0.5), (0.7, 0, 0),
                material=Material((0.2, 0.35, 0.85), specular=0.8, shininess=64.0),
                velocity=(-0.05, 0.0, 0.0), bob=0.2),
-        Object("box", (0.0, 1.0, -3.0), (3.0, 1.0, 0.1),
+        Object("box", (0.0, 1.5, -9.0), (5.0, 1.5, 0.1),
                material=Material((0.85, 0.85, 0.8), "zoneplate", 1.5)),
         Object("box", (0.2, 0.3, 2.0), (0.3, 0.3, 0.3),
                material=Material((1.0, 0.8, 0.3), emission=1.5, flicker_hz=4.0)),
@@ -36,7 +36,7 @@ def _fence():
                  for i in range(13))
     return (
         GROUND,
-        Object("box", (0.0, 0.8, -1.5), (2.0, 0.8, 0.2), 0.1,
+        Object("box", (0.0, 1.0, -6.5), (3.5, 1.0, 0.2), 0.1,
                Material((0.3, 0.6, 0.35), "stripes", 8.0, specular=0.2)),
         Object("sphere", (-1.0, 0.5, -0.3), (0.5, 0, 0),
                material=Material((0.9, 0.5, 0.1), "checker", 4.0, specular=0.9, shininess=96.0),
@@ -49,7 +49,7 @@ def _fence():
 def _plaza():
     return (
         GROUND,
-        Object("box", (0.0, 1.2, -3.5), (4.0, 1.2, 0.1),
+        Object("box", (0.0, 1.2, -9.5), (6.0, 1.2, 0.1),
                material=Material((0.7, 0.7, 0.75), "checker", 3.0)),
         Object("box", (-2.0, 0.4, 0.0), (0.4, 0.4, 0.4), material=Material((0.9, 0.3, 0.3)),
                velocity=(0.08, 0.0, 0.0)),
@@ -67,6 +67,7 @@ def _plaza():
 _LAYOUTS = {"courtyard": _courtyard, "fence": _fence, "plaza": _plaza}
 _POINT = Light("point", (1.5, 3.0, 1.5), ambient=0.2, orbit_speed=0.08)
 
+# Backdrop walls stand outside every orbit, so that no path looks through them.
 # name: (layout, effects, path, light)
 _SUITE = {
     "camera_orbit": ("courtyard", ("camera_motion",), Path("orbit", speed=0.02), Light()),
