@@ -63,17 +63,21 @@ def outputs(step, params, state, frames, *, remat=False, unroll=1):
 
 
 def metrics(step, params, state, frames, targets, metric_fn, *, unroll=1):
-    """Scan and reduce each frame with ``metric_fn(out, target, frame) -> pytree``;
+    """Scan and reduce each frame with
+    ``metric_fn(out, target, prev_out, prev_target, has_prev, frame) -> pytree``
+    (the previous frame's output and target are carried, for temporal metrics);
     returns ``(per-frame metrics stacked over T, final state)``; no outputs kept."""
     body = _body(step, params, False)
 
-    def f(s, xs):
+    def f(c, xs):
         frame, target = xs
-        out, s = body(s, frame)
-        return s, metric_fn(out, target, frame)
+        out, s = body(c.state, frame)
+        m = metric_fn(out, target, c.prev_out, c.prev_target, c.has_prev, frame)
+        return Carry(s, out.astype(jnp.float32), target.astype(jnp.float32),
+                     jnp.asarray(True)), m
 
-    state, ms = jax.lax.scan(f, state, (frames, targets), unroll=unroll)
-    return ms, state
+    carry, ms = jax.lax.scan(f, start(state, targets[0]), (frames, targets), unroll=unroll)
+    return ms, carry.state
 
 
 def _segment(body, loss_fn, carry, frames, targets, with_loss, unroll):

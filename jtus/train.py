@@ -1,18 +1,41 @@
-"""Training: the jitted train step over ``jtus.rollout`` windows (CLI to come).
+"""Training: ``python -m jtus.train``, thin over ``train_and_evaluate(config, workdir)``.
 
-One jit region per optimizer step with the train state donated (big_vision's
-habit). Sequences start with ``frame.reset`` set, so the model initializes its
-history inside the step: BPTT and every TBPTT window share one trace.
+    python -m jtus.train                       # the main job: default preset, see README
+    python -m jtus.train --preset tiny --workdir runs/tiny
+    python -m jtus.train --preset paper --factor 2 --workdir runs/paper-x2
+    python -m jtus.train --loss st-linear --theta 0.5 --seq-len 16 --mode tbptt --k1 4 --k2 8
+
+One jit region per optimizer step with the train state donated (``make_train_step``),
+over ``jtus.rollout`` windows: BPTT (the loss on the last ``loss_frames`` frames of
+``seq_len``) or TBPTT (k1, k2). Sequences start with ``frame.reset`` set, so the model
+initializes its history inside the step and every window shares one trace.
+
+After each epoch: the loss on fixed validation crops, PSNR/SSIM over whole validation
+videos (thesis sec. 4.3.5), an atomic checkpoint, ``metrics.json``/``metrics.csv`` and
+``training.png``. ``--resume`` continues from the last checkpoint exactly: the crops of
+epoch e come from ``default_rng([seed, e])`` and the checkpoint holds the step, the
+parameters and the optimizer state.
 """
 
 from __future__ import annotations
 
+import argparse
+import csv
+import dataclasses
+import json
+import os
+import sys
+import time
 from typing import Any, NamedTuple
 
 import jax
+import jax.numpy as jnp
+import numpy as np
 import optax
 
-from jtus import rollout
+from jtus import losses, metrics, rollout
+
+# ---------------------------------------------------------------- train step
 
 
 class TrainState(NamedTuple):
@@ -22,14 +45,13 @@ class TrainState(NamedTuple):
 
 
 def create_train_state(params, optimizer) -> TrainState:
-    import jax.numpy as jnp
     return TrainState(jnp.zeros((), jnp.int32), params, optimizer.init(params))
 
 
 def make_train_step(model, loss_fn, optimizer, *, loss_frames, keep_at=None, remat=False,
                     unroll=1, jit=True):
     """``(train_state, carry, frames [T,B,...], targets [T,B,H,W,3]) ->
-    (train_state, next carry, metrics)``.
+    (train_state, next carry, stats)``.
 
     BPTT: a window of the whole sequence, ``loss_frames`` = K. TBPTT(k1, k2): windows
     of k2 frames from ``rollout.tbptt_windows``, ``loss_frames = k1`` and
@@ -52,3 +74,355 @@ def make_train_step(model, loss_fn, optimizer, *, loss_frames, keep_at=None, rem
         return TrainState(ts.step + 1, params, opt_state), nxt, stats
 
     return jax.jit(train_step, donate_argnums=(0, 1)) if jit else train_step
+
+
+# ---------------------------------------------------------------- configuration
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    """A training run. The presets below are the documented starting points."""
+    model: str = "dlctus"
+    factor: int = 4
+    loss: str = "l1"
+    theta: float = 0.5
+    seq_len: int = 8
+    loss_frames: int = 3
+    mode: str = "bptt"          # bptt | tbptt
+    k1: int = 4
+    k2: int = 8
+    remat: bool = False
+    batch: int = 4
+    crop: int = 64
+    lr: float = 1e-3
+    epochs: int = 8
+    steps_per_epoch: int = 100
+    val_batches: int = 2
+    val_videos: int = 4
+    dataset: str = "data/default.h5"
+    data_preset: str = "default"  # generated into ``dataset`` when the file is missing
+    seed: int = 0
+    model_overrides: tuple = ()   # (("warp", "bilinear"), ...) for the model's config
+
+    def __post_init__(self):
+        if self.mode not in ("bptt", "tbptt"):
+            raise ValueError(f"mode: expected bptt or tbptt, got {self.mode!r}")
+        if self.mode == "bptt" and not 1 <= self.loss_frames <= self.seq_len:
+            raise ValueError(f"loss_frames: expected 1..seq_len={self.seq_len}, "
+                             f"got {self.loss_frames}")
+        if self.mode == "tbptt":
+            rollout.tbptt_windows(self.seq_len, self.k1, self.k2)
+        if self.loss not in losses.NAMES:
+            raise ValueError(f"loss: expected one of {losses.NAMES}, got {self.loss!r}")
+
+
+PRESETS = {
+    # seconds: for tests
+    "tiny": Config(factor=4, seq_len=4, loss_frames=2, batch=2, crop=16, epochs=2,
+                   steps_per_epoch=2, val_batches=1, val_videos=1, dataset="data/tiny.h5",
+                   data_preset="tiny"),
+    # minutes on 2 CPU cores, on the built-in default data
+    "default": Config(),
+    # thesis sec. 4.3: 256 crops, batch 4, sequence 30, loss on the last 5, Adam 1e-4,
+    # 200 epochs; for a GPU machine and the paper-size data
+    "paper": Config(seq_len=30, loss_frames=5, batch=4, crop=256, lr=1e-4, epochs=200,
+                    steps_per_epoch=500, val_batches=10, val_videos=10,
+                    dataset="data/paper.h5", data_preset="paper"),
+}
+
+
+# ---------------------------------------------------------------- pieces
+
+
+def _model(config: Config):
+    from jtus import models
+    return models.build(config.model, config.factor, **dict(config.model_overrides))
+
+
+def _loss(config: Config):
+    return losses.make(config.loss, config.factor, theta=config.theta)
+
+
+def _optimizer(config: Config):
+    return optax.adam(config.lr)
+
+
+def _plan(config: Config):
+    """(window length, loss frames, keep_at, windows per sequence)."""
+    if config.mode == "bptt":
+        return config.seq_len, config.loss_frames, None, [rollout.Window(0, config.seq_len)]
+    keep = config.k1 if config.k1 < config.k2 else None
+    return config.k2, config.k1, keep, rollout.tbptt_windows(config.seq_len, config.k1, config.k2)
+
+
+def ensure_dataset(config: Config, progress=True):
+    if not os.path.exists(config.dataset):
+        from jtus.data import dataset
+        print(f"{config.dataset} is missing: generating the {config.data_preset!r} preset "
+              f"(once)", file=sys.stderr)
+        dataset.generate(config.data_preset, config.dataset, progress=progress)
+    return config.dataset
+
+
+def _start_carry(model, frames, targets):
+    first = jax.tree_util.tree_map(lambda x: x[0], frames)
+    return rollout.start(model.init_state(first), targets[0])
+
+
+def _frame_metrics(factor):
+    def fn(out, target, prev_out, prev_target, has_prev, frame):
+        x, y = losses.errors(out, target, prev_out, prev_target, has_prev, frame, factor)
+        temporal = jnp.mean(jnp.abs(x - y), axis=(1, 2, 3))
+        return {"psnr": metrics.psnr(out, target), "ssim": metrics.ssim(out, target),
+                "temporal": jnp.where(has_prev, temporal, jnp.nan)}
+    return fn
+
+
+def video_metrics(model, params, frames, targets, factor):
+    """Per-frame PSNR, SSIM and temporal error (L_st-linear at θ=1) over one video."""
+    fn = jax.jit(lambda p, s, f, t: rollout.metrics(model.step, p, s, f, t,
+                                                    _frame_metrics(factor))[0])
+    first = jax.tree_util.tree_map(lambda x: x[0], frames)
+    ms = fn(params, model.init_state(first), frames, targets)
+    return {k: np.asarray(v)[:, 0] for k, v in ms.items()}
+
+
+# ---------------------------------------------------------------- checkpoints
+
+
+def save_checkpoint(workdir, ts: TrainState, epoch, history):
+    """Atomically write ``checkpoint.msgpack`` (step, epoch, params, optimizer state)
+    and ``metrics.json``."""
+    from flax import serialization
+
+    from jtus.data.dataset import atomic_path
+
+    payload = serialization.to_bytes({"epoch": epoch, "step": ts.step, "params": ts.params,
+                                      "opt_state": ts.opt_state})
+    with atomic_path(os.path.join(workdir, "checkpoint.msgpack")) as tmp:
+        with open(tmp, "wb") as fh:
+            fh.write(payload)
+    with atomic_path(os.path.join(workdir, "metrics.json")) as tmp:
+        with open(tmp, "w") as fh:
+            json.dump(history, fh, indent=1)
+
+
+def load_checkpoint(workdir, ts: TrainState):
+    """``(train_state, epoch, history)`` from ``workdir`` into the structure of ``ts``."""
+    from flax import serialization
+
+    path = os.path.join(workdir, "checkpoint.msgpack")
+    with open(path, "rb") as fh:
+        data = fh.read()
+    target = {"epoch": 0, "step": ts.step, "params": ts.params, "opt_state": ts.opt_state}
+    try:
+        restored = serialization.from_bytes(target, data)
+    except Exception as e:
+        raise ValueError(f"{path}: not a checkpoint of this model and optimizer ({e})") from e
+    history = []
+    mpath = os.path.join(workdir, "metrics.json")
+    if os.path.exists(mpath):
+        with open(mpath) as fh:
+            history = json.load(fh)
+    state = TrainState(jnp.asarray(restored["step"]), restored["params"], restored["opt_state"])
+    return state, int(restored["epoch"]), history
+
+
+def load_params(path, config_path=None):
+    """Parameters and training config of a checkpoint written by ``train``."""
+    from flax import serialization
+
+    workdir = os.path.dirname(os.path.abspath(path))
+    config_path = config_path or os.path.join(workdir, "config.json")
+    config = config_from_json(config_path)
+    model = _model(config)
+    params = model.init(jax.random.PRNGKey(0))
+    with open(path, "rb") as fh:
+        raw = serialization.msgpack_restore(fh.read())
+    params = serialization.from_state_dict(params, raw["params"])
+    return params, config
+
+
+def config_to_json(config: Config):
+    return json.dumps(dataclasses.asdict(config), indent=1)
+
+
+def config_from_json(path):
+    with open(path) as fh:
+        data = json.load(fh)
+    data["model_overrides"] = tuple(tuple(x) for x in data.get("model_overrides", ()))
+    return Config(**data)
+
+
+def _write_csv(workdir, history):
+    if not history:
+        return
+    keys = list(history[0])
+    with open(os.path.join(workdir, "metrics.csv"), "w", newline="") as fh:
+        w = csv.DictWriter(fh, keys)
+        w.writeheader()
+        w.writerows(history)
+
+
+def plot_history(history, path):
+    """Training loss, validation loss, validation PSNR and SSIM per epoch (thesis Fig. 16)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ep = [h["epoch"] for h in history]
+    fig, ax = plt.subplots(1, 4, figsize=(14, 3))
+    for a, key, title in zip(ax, ("train_loss", "val_loss", "val_psnr", "val_ssim"),
+                             ("training loss", "validation loss", "validation PSNR (dB)",
+                              "validation SSIM")):
+        a.plot(ep, [h[key] for h in history], marker="o")
+        a.set_title(title)
+        a.set_xlabel("epoch")
+        a.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+# ---------------------------------------------------------------- the loop
+
+
+def train_and_evaluate(config: Config, workdir, resume=False, progress=True, stop_after=None):
+    """Train ``config`` into ``workdir``; returns ``(params, history)``.
+
+    ``stop_after``: stop (as if killed) after that many epochs of this call, for tests.
+    """
+    from tqdm import tqdm
+
+    from jtus.data.dataset import Dataset
+
+    from jtus import models
+
+    if config.model not in models.TRAINABLE:
+        raise ValueError(f"model: {config.model!r} has no parameters to train; "
+                         f"trainable: {models.TRAINABLE}")
+    os.makedirs(workdir, exist_ok=True)
+    ensure_dataset(config, progress)
+    model, loss_fn, opt = _model(config), _loss(config), _optimizer(config)
+    ts = create_train_state(model.init(jax.random.PRNGKey(config.seed)), opt)
+    start_epoch, history = 0, []
+    cfg_path = os.path.join(workdir, "config.json")
+    if resume and os.path.exists(os.path.join(workdir, "checkpoint.msgpack")):
+        if os.path.exists(cfg_path) and config_from_json(cfg_path) != config:
+            raise ValueError(f"{workdir}: --resume with a different config than "
+                             f"{cfg_path}; use a new --workdir")
+        ts, start_epoch, history = load_checkpoint(workdir, ts)
+        print(f"resumed {workdir} after epoch {start_epoch}", file=sys.stderr)
+    with open(cfg_path, "w") as fh:
+        fh.write(config_to_json(config))
+    window, loss_frames, keep, windows = _plan(config)
+    step_fn = make_train_step(model, loss_fn, opt, loss_frames=loss_frames, keep_at=keep,
+                              remat=config.remat)
+    eval_loss = jax.jit(lambda p, c, f, t: rollout.window_loss(
+        model.step, loss_fn, p, c, f, t, loss_frames=loss_frames)[0])
+    with Dataset(config.dataset) as ds:
+        val_rng = np.random.default_rng([config.seed, 10**6])
+        val_crops = [ds.crops("val", config.factor, config.batch, window, config.crop, val_rng)
+                     for _ in range(config.val_batches)]
+        val_names = ds.videos("val")[:config.val_videos]
+        done = 0
+        for epoch in range(start_epoch + 1, config.epochs + 1):
+            rng = np.random.default_rng([config.seed, epoch])
+            t0 = time.perf_counter()
+            run = []
+            bar = tqdm(range(config.steps_per_epoch), desc=f"epoch {epoch}/{config.epochs}",
+                       disable=not progress, leave=False)
+            for _ in bar:
+                frames, targets = ds.crops("train", config.factor, config.batch, config.seq_len,
+                                           config.crop, rng)
+                frames, targets = jax.tree_util.tree_map(jnp.asarray, (frames, targets))
+                carry = _start_carry(model, frames, targets)
+                for w in windows:
+                    sl = jax.tree_util.tree_map(lambda x: x[w.start:w.stop], (frames, targets))
+                    ts, carry, stats = step_fn(ts, carry, *sl)
+                    run.append(float(stats["loss"]))
+                bar.set_postfix(loss=f"{np.mean(run[-20:]):.4f}")
+            val = [float(eval_loss(ts.params, _start_carry(model, *c), *c))
+                   for c in (jax.tree_util.tree_map(jnp.asarray, c) for c in val_crops)]
+            psnr, ssim = [], []
+            for name in val_names:
+                vf, vt = ds.video("val", name, config.factor)
+                m = video_metrics(model, ts.params, *jax.tree_util.tree_map(jnp.asarray, (vf, vt)),
+                                  config.factor)
+                psnr.append(m["psnr"])
+                ssim.append(m["ssim"])
+            rec = {"epoch": epoch, "step": int(ts.step), "train_loss": float(np.mean(run)),
+                   "val_loss": float(np.mean(val)),
+                   "val_psnr": float(np.mean(np.concatenate(psnr))) if psnr else float("nan"),
+                   "val_ssim": float(np.mean(np.concatenate(ssim))) if ssim else float("nan"),
+                   "seconds": time.perf_counter() - t0}
+            history.append(rec)
+            save_checkpoint(workdir, ts, epoch, history)
+            _write_csv(workdir, history)
+            plot_history(history, os.path.join(workdir, "training.png"))
+            print(f"epoch {epoch}: train {rec['train_loss']:.4f}  val {rec['val_loss']:.4f}  "
+                  f"PSNR {rec['val_psnr']:.2f} dB  SSIM {rec['val_ssim']:.4f}  "
+                  f"({rec['seconds']:.0f} s)", file=sys.stderr)
+            done += 1
+            if stop_after is not None and done >= stop_after:
+                break
+    return ts.params, history
+
+
+# ---------------------------------------------------------------- CLI
+
+
+def _parser():
+    p = argparse.ArgumentParser(prog="python -m jtus.train", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--preset", choices=tuple(PRESETS), default="default")
+    p.add_argument("--workdir", default=None, help="default: runs/<preset>-x<factor>")
+    p.add_argument("--resume", action="store_true")
+    p.add_argument("--no-eval", action="store_true",
+                   help="skip the final comparison with JAU, TUS and the shipped weights")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    for f in dataclasses.fields(Config):
+        if f.name in ("model_overrides",):
+            continue
+        flag = "--" + f.name.replace("_", "-")
+        if f.type in ("bool", bool):
+            p.add_argument(flag, action=argparse.BooleanOptionalAction, default=None)
+        else:
+            typ = {"int": int, "float": float}.get(str(f.type), str)
+            p.add_argument(flag, type=typ, default=None)
+    p.add_argument("--warp", help="DLCTUS reprojection warp (any jtus.sampling method)")
+    return p
+
+
+def config_from_args(args) -> Config:
+    base = PRESETS[args.preset]
+    over = {f.name: getattr(args, f.name) for f in dataclasses.fields(Config)
+            if f.name != "model_overrides" and getattr(args, f.name, None) is not None}
+    config = dataclasses.replace(base, **over)
+    if args.warp:
+        config = dataclasses.replace(config, model_overrides=(("warp", args.warp),))
+    return config
+
+
+def main(argv=None):
+    args = _parser().parse_args(argv)
+    try:
+        config = config_from_args(args)
+        workdir = args.workdir or os.path.join("runs", f"{args.preset}-x{config.factor}")
+        train_and_evaluate(config, workdir, resume=args.resume, progress=not args.quiet)
+    except (ValueError, FileNotFoundError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    print(f"checkpoint: {os.path.join(workdir, 'checkpoint.msgpack')}", file=sys.stderr)
+    if not args.no_eval:
+        from jtus import evaluate
+        evaluate.main(["--dataset", config.dataset, "--factor", str(config.factor),
+                       "--models", "jau", "tus", "shipped",
+                       f"trained={os.path.join(workdir, 'checkpoint.msgpack')}",
+                       "--out", os.path.join(workdir, "eval")]
+                      + (["--max-videos", "4"] if args.preset == "default" else []))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

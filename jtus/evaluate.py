@@ -1,0 +1,228 @@
+"""Evaluation: ``python -m jtus.evaluate`` runs models over whole test videos.
+
+    python -m jtus.evaluate --models jau tus shipped
+    python -m jtus.evaluate --factor 4 --models jau tus trained=runs/default-x4/checkpoint.msgpack
+    python -m jtus.evaluate --models tus thesis=thesis_dlctus_x4.pt --json
+
+Model specs: a built-in name (``jau``, ``jau-bicubic``, ``tus``, ``tus-clip``),
+``shipped`` (the weights under ``jtus/weights/`` for the factor), or ``LABEL=PATH``
+for a checkpoint written by ``jtus.train`` (``.msgpack``) or a PyTorch DLCTUS
+checkpoint (``.pt``). Every video starts from a fresh state.
+
+Writes into ``--out``: ``results.md`` (per factor: PSNR / SSIM / temporal error per
+method, thesis Table 2 layout), ``results.json``, ``per_frame_x{f}.png`` (PSNR and SSIM
+per frame over the test videos, thesis Figures 8-13) and ``crops_x{f}.png`` (input,
+each method, reference; thesis Table 3).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+WEIGHTS = os.path.join(os.path.dirname(__file__), "weights")
+
+
+class Entry(NamedTuple):
+    label: str
+    model: object
+    params: object
+
+
+def shipped_path(factor):
+    return os.path.join(WEIGHTS, f"dlctus-x{factor}.msgpack")
+
+
+def resolve(spec, factor) -> Entry | None:
+    """A model spec -> Entry (None for ``shipped`` weights that do not exist)."""
+    from jtus import models, train
+    from jtus.models import dlctus
+
+    if spec == "shipped":
+        path = shipped_path(factor)
+        if not os.path.exists(path):
+            print(f"warning: no shipped weights for factor {factor} ({path}); skipped",
+                  file=sys.stderr)
+            return None
+        spec = f"dlctus-shipped={path}"
+    if "=" in spec:
+        label, path = spec.split("=", 1)
+        if not os.path.exists(path):
+            raise FileNotFoundError(f"{label}: {path} does not exist")
+        if path.endswith(".pt"):
+            config = dlctus.Config(factor=factor)
+            return Entry(label, dlctus.make(config), dlctus.load_torch_checkpoint(path, config))
+        params, config = train.load_params(path, os.path.splitext(path)[0] + ".json"
+                                           if os.path.exists(os.path.splitext(path)[0] + ".json")
+                                           else None)
+        if config.factor != factor:
+            print(f"warning: {label} was trained for factor {config.factor}; skipped at "
+                  f"{factor}x", file=sys.stderr)
+            return None
+        return Entry(label, train._model(config), params)
+    return Entry(spec, models.build(spec, factor), {})
+
+
+def evaluate(entries, dataset_path, factor, split="test", max_videos=None, progress=True):
+    """``{label: {"psnr": [...], "ssim": [...], "temporal": [...]}}`` per frame, all
+    videos concatenated, plus the video names."""
+    from tqdm import tqdm
+
+    from jtus.data.dataset import Dataset
+    from jtus.train import video_metrics
+
+    out = {e.label: {"psnr": [], "ssim": [], "temporal": []} for e in entries}
+    with Dataset(dataset_path) as ds:
+        names = ds.videos(split)[:max_videos]
+        if not names:
+            raise ValueError(f"{dataset_path}: no videos in split {split!r}")
+        for name in tqdm(names, desc=f"evaluate x{factor}", disable=not progress):
+            frames, targets = ds.video(split, name, factor)
+            frames, targets = jax.tree_util.tree_map(jnp.asarray, (frames, targets))
+            for e in entries:
+                m = video_metrics(e.model, e.params, frames, targets, factor)
+                for k in out[e.label]:
+                    out[e.label][k].append(m[k])
+    res = {lab: {k: np.concatenate(v) for k, v in d.items()} for lab, d in out.items()}
+    return res, names
+
+
+def summarize(per_frame):
+    return {lab: {"psnr": float(np.mean(d["psnr"])), "ssim": float(np.mean(d["ssim"])),
+                  "temporal": float(np.nanmean(d["temporal"]))} for lab, d in per_frame.items()}
+
+
+def markdown(summary_by_factor):
+    lines = ["| factor | method | PSNR (dB) | SSIM | temporal error |", "| --- | --- | --- | --- | --- |"]
+    for f, summ in summary_by_factor.items():
+        for lab, s in summ.items():
+            lines.append(f"| {f}x | {lab} | {s['psnr']:.2f} | {s['ssim']:.4f} | "
+                         f"{s['temporal']:.5f} |")
+    return "\n".join(lines)
+
+
+def plot_per_frame(per_frame, path, factor):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(2, 1, figsize=(11, 5), sharex=True)
+    for lab, d in per_frame.items():
+        ax[0].plot(d["psnr"], label=lab, lw=1)
+        ax[1].plot(d["ssim"], label=lab, lw=1)
+    ax[0].set_ylabel("PSNR (dB)")
+    ax[1].set_ylabel("SSIM")
+    ax[1].set_xlabel("frame (test videos one after another)")
+    ax[0].set_title(f"{factor}x up-sampling, per frame")
+    ax[0].legend(loc="lower right", fontsize=8)
+    for a in ax:
+        a.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def crop_grid(entries, dataset_path, factor, path, split="test", crop=64, rows=3):
+    """Rows of crops (the region of most detail in the middle frame of a video):
+    input (nearest-enlarged), each method, reference."""
+    from PIL import Image
+
+    from jtus import rollout
+    from jtus.data.dataset import Dataset
+    from jtus.data.exr import _srgb
+
+    tiles = []
+    with Dataset(dataset_path) as ds:
+        names = ds.videos(split)
+        picks = [names[i * len(names) // rows] for i in range(min(rows, len(names)))]
+        for name in picks:
+            frames, targets = ds.video(split, name, factor)
+            t = len(targets) // 2
+            tgt = targets[t, 0]
+            H, W, _ = tgt.shape
+            c = min(crop, H, W) // factor * factor
+            grad = np.abs(np.diff(tgt.mean(-1), axis=0))[:, :-1] + np.abs(np.diff(tgt.mean(-1), axis=1))[:-1]
+            best, yx = -1.0, (0, 0)
+            for y in range(0, H - c + 1, c // 2):
+                for x in range(0, W - c + 1, c // 2):
+                    v = grad[y:y + c - 1, x:x + c - 1].sum()
+                    if v > best:
+                        best, yx = v, (y // factor * factor, x // factor * factor)
+            y, x = yx
+            lr = frames.color[t, 0][y // factor:(y + c) // factor, x // factor:(x + c) // factor]
+            row = [np.repeat(np.repeat(lr, factor, 0), factor, 1)]
+            fj = jax.tree_util.tree_map(lambda a: jnp.asarray(a[:t + 1]), frames)
+            for e in entries:
+                first = jax.tree_util.tree_map(lambda a: a[0], fj)
+                outs, _ = rollout.outputs(e.model.step, e.params, e.model.init_state(first), fj)
+                row.append(np.asarray(outs[-1, 0])[y:y + c, x:x + c])
+            row.append(tgt[y:y + c, x:x + c])
+            tiles.append(np.concatenate(row, 1))
+    img = np.concatenate(tiles, 0)
+    Image.fromarray(np.round(_srgb(img) * 255).astype(np.uint8)).save(path)
+    return ["input"] + [e.label for e in entries] + ["reference"]
+
+
+def _parser():
+    p = argparse.ArgumentParser(prog="python -m jtus.evaluate", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--dataset", default="data/default.h5")
+    p.add_argument("--split", default="test")
+    p.add_argument("--factor", type=int, nargs="*", help="default: every factor in the data")
+    p.add_argument("--models", nargs="+", default=["jau", "tus", "shipped"])
+    p.add_argument("--max-videos", type=int)
+    p.add_argument("--out", default="runs/eval")
+    p.add_argument("--no-crops", action="store_true")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--quiet", action="store_true")
+    return p
+
+
+def main(argv=None):
+    from jtus.data.dataset import Dataset
+    from jtus.train import ensure_dataset, PRESETS
+
+    args = _parser().parse_args(argv)
+    try:
+        if args.dataset == PRESETS["default"].dataset:
+            ensure_dataset(PRESETS["default"], not args.quiet)
+        with Dataset(args.dataset) as ds:
+            factors = args.factor or list(ds.factors)
+        os.makedirs(args.out, exist_ok=True)
+        summary, legends = {}, {}
+        for f in factors:
+            entries = [e for e in (resolve(s, f) for s in args.models) if e is not None]
+            per_frame, names = evaluate(entries, args.dataset, f, args.split, args.max_videos,
+                                        progress=not args.quiet)
+            summary[f] = summarize(per_frame)
+            plot_per_frame(per_frame, os.path.join(args.out, f"per_frame_x{f}.png"), f)
+            if not args.no_crops:
+                legends[f] = crop_grid(entries, args.dataset, f,
+                                       os.path.join(args.out, f"crops_x{f}.png"), args.split)
+    except (ValueError, FileNotFoundError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    table = markdown(summary)
+    cmd = "python -m jtus.evaluate " + " ".join(argv if argv is not None else sys.argv[1:])
+    with open(os.path.join(args.out, "results.md"), "w") as fh:
+        fh.write(f"{table}\n\nCommand: `{cmd}`  \nSplit `{args.split}` of `{args.dataset}`, "
+                 f"{len(names)} videos; {platform.machine()}, JAX {jax.__version__}, "
+                 f"{jax.devices()[0].platform}.\n")
+        for f, leg in legends.items():
+            fh.write(f"\n`crops_x{f}.png` columns: {', '.join(leg)}\n")
+    with open(os.path.join(args.out, "results.json"), "w") as fh:
+        json.dump({str(k): v for k, v in summary.items()}, fh, indent=1)
+    print(json.dumps({str(k): v for k, v in summary.items()}, indent=1) if args.json else table)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

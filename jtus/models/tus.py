@@ -1,0 +1,183 @@
+"""Classical temporal up-sampling (TUS/TAA, thesis sec. 2.4, eq. 34-42).
+
+Per frame, at HR:
+
+1. the input scaled to HR (eq. 38): with the ``tent`` filter (eq. 40, one LR pixel
+   wide) this is exactly bilinear jitter-aligned up-sampling; with ``gaussian``
+   (eq. 41, ``sigma`` in HR pixels) the 3x3 LR samples around the HR pixel are
+   weighted by their distance and normalized;
+2. the history reprojected with any warp (motion optionally 3x3-dilated), padded with
+   the scaled input where it leaves the previous frame (as DLCTUS, sec. 5.3.1);
+3. history rectification against the box of the 3x3 LR samples around the HR pixel,
+   in RGB or YCoCg: ``clamp`` (per channel) or ``clip`` (toward the samples' mean,
+   onto the box), or ``none``;
+4. accumulation ``f = αβ s + (1 - αβ) h`` (eq. 39) with α constant or 1/N (the count N
+   travels in the history's fourth channel) and β ``box`` (1 on the HR pixel that holds
+   this frame's sample, else 0: Yang et al.'s one-pixel box), ``max`` (the largest
+   unnormalized filter weight, eq. 42) or ``one``.
+
+The state is the history ``[B,H,W,4]``: RGB and the sample count N.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jtus import sampling
+from jtus.frame import Frame
+from jtus.models.base import Model
+
+RECTIFY = ("clamp", "clip", "none")
+FILTERS = ("tent", "gaussian")
+BETAS = ("box", "max", "one")
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    factor: int = 4
+    warp: str = "bicubic"
+    warp_a: float = -0.75
+    rectify: str = "clamp"
+    color_space: str = "rgb"        # rgb | ycocg: where the neighbourhood box is taken
+    alpha: float = 1.0              # constant α, or the floor of 1/N with inverse_count
+    inverse_count: bool = False     # α = max(1/N, alpha)
+    filter: str = "tent"
+    sigma: float = 0.47             # Gaussian filter width in HR pixels (UE4-like)
+    beta: str = "box"
+    dilation: bool = False
+
+    def __post_init__(self):
+        checks = (("rectify", self.rectify, RECTIFY), ("filter", self.filter, FILTERS),
+                  ("beta", self.beta, BETAS), ("color_space", self.color_space, ("rgb", "ycocg")),
+                  ("warp", self.warp, sampling.METHODS))
+        for name, value, allowed in checks:
+            if value not in allowed:
+                raise ValueError(f"{name}: expected one of {allowed}, got {value!r}")
+        if not 0.0 < self.alpha <= 1.0:
+            raise ValueError(f"alpha: expected a value in (0, 1], got {self.alpha}")
+        if self.factor < 1:
+            raise ValueError(f"factor: expected >= 1, got {self.factor}")
+
+
+def thesis(factor) -> Config:
+    """The thesis's TUS (sec. 5.3.1): clamping, bicubic reprojection, no dilation,
+    α = 0.5 at 2x and 1.0 at 4x, tent filter with Yang et al.'s box β."""
+    return Config(factor=factor, alpha=0.5 if factor == 2 else 1.0)
+
+
+PRESETS = {"tus": thesis, "tus-clip": lambda f: dataclasses.replace(thesis(f), rectify="clip",
+                                                                      color_space="ycocg")}
+
+
+class State(NamedTuple):
+    history: jax.Array  # [B,H,W,4] RGB and sample count N
+
+
+_OFFSETS = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
+
+
+def _jau_coords(frame, f):
+    b, h, w, _ = frame.color.shape
+    xy = sampling.pixel_grid(b, h * f, w * f) / f
+    return xy - frame.jitter.astype(jnp.float32)[:, None, None, :] + 0.5
+
+
+def _neighbours(lr, xy):
+    """The 3x3 LR samples around each HR pixel's nearest sample: ``[9,B,H,W,C]``."""
+    return jnp.stack([sampling.sample(lr, xy + jnp.asarray([dx, dy], jnp.float32), "nearest")
+                      for dy, dx in _OFFSETS])
+
+
+def _scaled_input(config, frame, color, xy):
+    """(s [B,H,W,3], β_max [B,H,W,1]) per eq. 38 and 42."""
+    f = config.factor
+    if config.filter == "tent":
+        s = sampling.sample(color, xy, "bilinear")
+        u = xy - 0.5  # sample j sits at u = j
+        d = u - jnp.round(u)
+        beta = jnp.prod(jnp.clip(1 - jnp.abs(d), 0, 1), -1, keepdims=True)
+        return s, beta
+    u = xy - 0.5
+    n = jnp.floor(u + 0.5)
+    num, den, beta = 0.0, 0.0, 0.0
+    for dy, dx in _OFFSETS:
+        off = jnp.asarray([dx, dy], jnp.float32)
+        d = (n + off - u) * f  # distance to that sample in HR pixels
+        wgt = jnp.exp(-(d * d).sum(-1, keepdims=True) / (2 * config.sigma ** 2))
+        num = num + wgt * sampling.sample(color, n + off + 0.5, "nearest")
+        den = den + wgt
+        beta = jnp.maximum(beta, wgt)
+    return num / den, beta
+
+
+def _beta(config, frame, beta_max):
+    if config.beta == "one":
+        return jnp.ones_like(beta_max)
+    if config.beta == "max":
+        return beta_max
+    b, h, w, _ = frame.color.shape
+    ones = jnp.ones((b, h, w, 1), jnp.float32)
+    return sampling.zero_upsample(ones, frame.jitter.astype(jnp.float32), config.factor)
+
+
+def _rectify(config, hist, color, xy):
+    if config.rectify == "none":
+        return hist
+    neigh = _neighbours(color, xy)
+    to = sampling.rgb_to_ycocg if config.color_space == "ycocg" else (lambda x: x)
+    back = sampling.ycocg_to_rgb if config.color_space == "ycocg" else (lambda x: x)
+    neigh = to(neigh)
+    h = to(hist)
+    lo, hi = neigh.min(0), neigh.max(0)
+    if config.rectify == "clamp":
+        return back(jnp.clip(h, lo, hi))
+    mean = neigh.mean(0)  # inside the box: clip the segment mean -> h onto the box
+    v = h - mean
+    safe = jnp.where(jnp.abs(v) < 1e-12, 1e-12, v)
+    t = jnp.where(v > 0, (hi - mean) / safe, jnp.where(v < 0, (lo - mean) / safe, jnp.inf))
+    t = jnp.clip(jnp.min(t, -1, keepdims=True), 0.0, 1.0)
+    return back(mean + t * v)
+
+
+def _fresh(s):
+    return jnp.concatenate([s, jnp.ones(s.shape[:-1] + (1,), s.dtype)], -1)
+
+
+def init_state(frame: Frame, config: Config = Config()) -> State:
+    color = frame.color.astype(jnp.float32)
+    s, _ = _scaled_input(config, frame, color, _jau_coords(frame, config.factor))
+    return State(_fresh(s))
+
+
+def step(params, state: State, frame: Frame, config: Config = Config()):
+    f = config.factor
+    color = frame.color.astype(jnp.float32)
+    depth = frame.depth.astype(jnp.float32)
+    motion = frame.motion.astype(jnp.float32)
+    b, h, w, _ = color.shape
+    xy = _jau_coords(frame, f)
+    s, beta_max = _scaled_input(config, frame, color, xy)
+    fresh = _fresh(s)
+    history = state.history
+    if frame.reset is not None:
+        history = jnp.where(frame.reset[:, None, None, None], fresh, history)
+    mv = sampling.dilate_motion(motion, depth) if config.dilation else motion
+    pos = sampling.pixel_grid(b, h * f, w * f) + f * sampling.upsample(mv, f)
+    rep, inside = sampling.sample(history, pos, config.warp, a=config.warp_a, return_mask=True)
+    hist = jnp.where(inside, rep, fresh)
+    rgb = _rectify(config, hist[..., :3], color, xy)
+    count = hist[..., 3:] + 1.0
+    alpha = jnp.maximum(1.0 / count, config.alpha) if config.inverse_count else config.alpha
+    ab = alpha * _beta(config, frame, beta_max)
+    out = ab * s + (1 - ab) * rgb
+    return out, State(jnp.concatenate([out, count], -1))
+
+
+def make(config: Config = Config()) -> Model:
+    return Model(init=lambda key: {}, init_state=lambda frame: init_state(frame, config),
+                 step=lambda params, state, frame: step(params, state, frame, config),
+                 config=config)

@@ -1,0 +1,118 @@
+"""``python -m jtus.upsample``: run a model over an input sequence and write the frames.
+
+    python -m jtus.upsample --input data/default.h5 --video objects_00 --factor 4 \\
+        --model shipped --out out/objects --format png --mp4 out/objects.mp4
+    python -m jtus.upsample --input renders/lr --exr-spec renders/spec.json --factor 4 \\
+        --model tus --out out/mine --format exr
+
+``--input`` is a jtus HDF5 dataset (with ``--split``/``--video``) or a folder of LR
+EXR frames (read with an ``ImportSpec`` sidecar; no target needed). ``--model`` takes
+the specs of ``python -m jtus.evaluate``. ``--mp4`` writes input (nearest-enlarged) |
+output side by side, which needs the ``video`` extra (``pip install -e ".[video]"``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def _load_input(args):
+    from jtus.frame import Frame
+
+    if os.path.isdir(args.input):
+        from jtus.data import conventions, exr
+
+        spec = exr.ImportSpec.from_json(args.exr_spec) if args.exr_spec else exr.ImportSpec()
+        files = exr._frames(args.input)
+        cols = {"color": [], "depth": [], "motion": []}
+        for path in files:
+            ch, _ = exr.read_exr(path)
+            color = exr._pick(ch, spec.color, path, "color")
+            h, w = color.shape[:2]
+            depth = conventions.depth_to_device(exr._pick(ch, (spec.depth,), path, "depth"),
+                                                spec.depth_kind, spec.near, spec.far)
+            mv = conventions.motion_to_jtus(exr._pick(ch, spec.motion, path, "motion"), w, h,
+                                            spec.motion_units, spec.motion_y_up, spec.motion_negate)
+            for k, v in (("color", color), ("depth", depth), ("motion", mv)):
+                cols[k].append(v.astype(np.float32))
+        jit = exr._jitters(spec, len(files), args.factor).astype(np.float32)
+        reset = np.arange(len(files)) == 0
+        return Frame(np.stack(cols["color"])[:, None], np.stack(cols["depth"])[:, None],
+                     np.stack(cols["motion"])[:, None], jit[:, None], reset[:, None])
+    from jtus.data.dataset import Dataset
+
+    with Dataset(args.input) as ds:
+        video = args.video or ds.videos(args.split)[0]
+        frames, _ = ds.video(args.split, video, args.factor)
+    return frames
+
+
+def upsample(entry, frames):
+    """Outputs ``[T,H,W,3]`` of a model entry over a time-major ``Frame`` with B=1."""
+    from jtus import rollout
+    from jtus.frame import validate
+
+    validate(frames, time_major=True)
+    fj = jax.tree_util.tree_map(jnp.asarray, frames)
+    first = jax.tree_util.tree_map(lambda a: a[0], fj)
+    run = jax.jit(lambda p, s, f: rollout.outputs(entry.model.step, p, s, f)[0])
+    return np.asarray(run(entry.params, entry.model.init_state(first), fj))[:, 0]
+
+
+def write_mp4(path, frames_lr, outputs, factor, fps=30):
+    try:
+        import imageio.v2 as imageio
+        import imageio_ffmpeg  # noqa: F401
+    except ImportError as e:
+        raise ValueError("--mp4 needs the video extra: pip install -e \".[video]\"") from e
+    from jtus.data.exr import _srgb
+
+    lr = np.repeat(np.repeat(frames_lr, factor, 1), factor, 2)
+    both = np.concatenate([lr, outputs], 2)
+    both = both[:, : both.shape[1] // 2 * 2, : both.shape[2] // 2 * 2]
+    with imageio.get_writer(path, fps=fps, codec="libx264", quality=8,
+                            macro_block_size=1) as w:
+        for img in both:
+            w.append_data(np.round(_srgb(img) * 255).astype(np.uint8))
+
+
+def main(argv=None):
+    from jtus.data import exr
+    from jtus.evaluate import resolve
+
+    p = argparse.ArgumentParser(prog="python -m jtus.upsample", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--input", required=True, help="HDF5 dataset or folder of LR EXR frames")
+    p.add_argument("--split", default="test")
+    p.add_argument("--video", help="video name in the dataset (default: the first)")
+    p.add_argument("--exr-spec", help="ImportSpec JSON for an EXR folder")
+    p.add_argument("--factor", type=int, required=True)
+    p.add_argument("--model", default="shipped")
+    p.add_argument("--out", required=True)
+    p.add_argument("--format", choices=exr.IMAGE_FORMATS, default="png")
+    p.add_argument("--mp4", help="also write input | output side by side to this MP4")
+    args = p.parse_args(argv)
+    try:
+        entry = resolve(args.model, args.factor)
+        if entry is None:
+            raise ValueError(f"model {args.model!r} is not available at {args.factor}x")
+        frames = _load_input(args)
+        outs = upsample(entry, frames)
+        paths = exr.write_sequence(outs, args.out, args.format)
+        if args.mp4:
+            write_mp4(args.mp4, np.asarray(frames.color)[:, 0], outs, args.factor)
+    except (ValueError, FileNotFoundError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    print(f"wrote {len(paths)} frames to {args.out}" + (f" and {args.mp4}" if args.mp4 else ""))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

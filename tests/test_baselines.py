@@ -1,0 +1,99 @@
+"""JAU and TUS (thesis sec. 2.4) as models."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jtus import models, rollout, sampling
+from jtus.frame import Frame
+from jtus.models import jau, tus
+from tests import seqdata
+
+
+def _frames(T=6, factor=4, **kw):
+    frames, targets = seqdata.sequence(T=T, B=2, h=8, w=8, factor=factor, **kw)
+    return seqdata.to_jax((frames._replace(reset=None), targets))
+
+
+def _first(tree):
+    return jax.tree_util.tree_map(lambda x: x[0], tree)
+
+
+@pytest.mark.parametrize("factor", [2, 4])
+def test_tus_with_unit_alpha_and_beta_is_jau(factor):
+    frames, _ = _frames(factor=factor)
+    m = tus.make(tus.Config(factor=factor, alpha=1.0, beta="one"))
+    outs, _ = rollout.outputs(m.step, {}, m.init_state(_first(frames)), frames)
+    j = jau.make(jau.Config(factor=factor))
+    ref, _ = rollout.outputs(j.step, {}, (), frames)
+    np.testing.assert_allclose(outs, ref, rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("rectify,space", [("clamp", "rgb"), ("clamp", "ycocg"), ("clip", "rgb"),
+                                           ("clip", "ycocg")])
+def test_rectified_history_lies_in_the_neighbourhood_box(rectify, space):
+    frames, _ = _frames(T=2)
+    config = tus.Config(factor=4, rectify=rectify, color_space=space)
+    frame = _first(frames)
+    rng = np.random.default_rng(0)
+    hist = jnp.asarray(rng.uniform(-0.5, 1.5, size=(2, 32, 32, 3)), jnp.float32)
+    xy = tus._jau_coords(frame, 4)
+    out = np.asarray(tus._rectify(config, hist, frame.color, xy))
+    neigh = np.asarray(tus._neighbours(frame.color, xy))
+    if space == "ycocg":
+        out, neigh = np.asarray(sampling.rgb_to_ycocg(out)), np.asarray(sampling.rgb_to_ycocg(neigh))
+    assert np.all(out >= neigh.min(0) - 1e-5) and np.all(out <= neigh.max(0) + 1e-5)
+    inside = np.asarray(tus._rectify(config, jnp.asarray(neigh.mean(0)) if space == "rgb"
+                                     else sampling.ycocg_to_rgb(jnp.asarray(neigh.mean(0))),
+                                     frame.color, xy))
+    # A history already inside the box is left alone.
+    ref = neigh.mean(0) if space == "rgb" else np.asarray(sampling.ycocg_to_rgb(neigh.mean(0)))
+    np.testing.assert_allclose(inside, ref, atol=1e-5)
+
+
+def test_inverse_count_converges_to_the_mean_of_the_jittered_samples():
+    """A static scene seen through the 16 thesis jitters: with α = 1/N and no
+    rectification the history is the running mean of the scaled inputs."""
+    f, T = 4, 16
+    rng = np.random.default_rng(0)
+    seq = sampling.jitter_sequence("thesis", f)
+    color = rng.uniform(size=(T, 1, 6, 6, 3)).astype(np.float32)  # what each jitter sees
+    frames = Frame(jnp.asarray(color), jnp.full((T, 1, 6, 6, 1), 0.5), jnp.zeros((T, 1, 6, 6, 2)),
+                   jnp.asarray(seq[:, None].astype(np.float32)))
+    m = tus.make(tus.Config(factor=f, rectify="none", inverse_count=True, alpha=1e-6,
+                            beta="one", warp="bilinear"))
+    outs, state = rollout.outputs(m.step, {}, m.init_state(_first(frames)), frames)
+    j = jau.make(jau.Config(factor=f))
+    scaled, _ = rollout.outputs(j.step, {}, (), frames)
+    # init_state counts the first frame once and its step again: weights 2,1,...,1 / 17.
+    expect = (np.asarray(scaled).sum(0) + np.asarray(scaled[0])) / (T + 1)
+    np.testing.assert_allclose(outs[-1], expect, atol=1e-5)
+    np.testing.assert_allclose(state.history[..., 3], T + 1)
+
+
+def test_gaussian_filter_and_max_beta():
+    frames, _ = _frames(T=3)
+    m = tus.make(tus.Config(factor=4, filter="gaussian", beta="max"))
+    outs, _ = rollout.outputs(m.step, {}, m.init_state(_first(frames)), frames)
+    assert np.all(np.isfinite(outs)) and outs.shape == (3, 2, 32, 32, 3)
+    # A constant input stays constant through any filter, rectification and β.
+    const = frames._replace(color=jnp.full_like(frames.color, 0.3))
+    outs, _ = rollout.outputs(m.step, {}, m.init_state(_first(const)), const)
+    np.testing.assert_allclose(outs, 0.3, atol=1e-6)
+
+
+def test_thesis_presets_and_registry():
+    assert tus.thesis(2).alpha == 0.5 and tus.thesis(4).alpha == 1.0
+    assert tus.thesis(4).rectify == "clamp" and tus.thesis(4).warp == "bicubic"
+    assert not tus.thesis(4).dilation
+    for name in models.NAMES:
+        m = models.build(name, 4)
+        assert m.config.factor == 4
+    with pytest.raises(ValueError, match="model"):
+        models.build("nerf", 4)
+    with pytest.raises(ValueError, match="rectify"):
+        tus.Config(rectify="reject")
+    assert dataclasses.replace(tus.thesis(2), dilation=True).dilation

@@ -1,0 +1,91 @@
+"""End to end in seconds: train -> checkpoint -> resume -> evaluate -> upsample."""
+
+import dataclasses
+import json
+import os
+
+import jax
+import numpy as np
+import pytest
+
+from jtus import evaluate, train, upsample
+from jtus.data import dataset
+
+
+@pytest.fixture(scope="module")
+def tiny_data(tmp_path_factory):
+    path = tmp_path_factory.mktemp("data") / "tiny.h5"
+    dataset.generate("tiny", path, progress=False)
+    return str(path)
+
+
+def _config(tiny_data, **kw):
+    return dataclasses.replace(train.PRESETS["tiny"], **{"dataset": tiny_data, "epochs": 3, **kw})
+
+
+def _leaves(params):
+    return [np.asarray(x) for x in jax.tree_util.tree_leaves(params)]
+
+
+def test_killed_run_resumes_to_the_same_parameters(tiny_data, tmp_path):
+    config = _config(tiny_data)
+    full, hist_full = train.train_and_evaluate(config, tmp_path / "full", progress=False)
+    part, hist_part = train.train_and_evaluate(config, tmp_path / "cut", progress=False,
+                                               stop_after=2)
+    assert len(hist_part) == 2  # killed after its second checkpoint
+    resumed, hist = train.train_and_evaluate(config, tmp_path / "cut", resume=True,
+                                             progress=False)
+    assert [h["epoch"] for h in hist] == [1, 2, 3]
+    for a, b in zip(_leaves(full), _leaves(resumed)):
+        np.testing.assert_array_equal(a, b)
+    assert hist[-1]["train_loss"] == hist_full[-1]["train_loss"]
+    for name in ("checkpoint.msgpack", "metrics.json", "metrics.csv", "training.png",
+                 "config.json"):
+        assert (tmp_path / "cut" / name).exists()
+    assert not [f for f in os.listdir(tmp_path / "cut") if f.endswith(".tmp")]
+
+
+def test_resume_refuses_another_config(tiny_data, tmp_path):
+    train.train_and_evaluate(_config(tiny_data, epochs=1), tmp_path, progress=False)
+    with pytest.raises(ValueError, match="different config"):
+        train.train_and_evaluate(_config(tiny_data, epochs=1, lr=0.5), tmp_path, resume=True,
+                                 progress=False)
+
+
+@pytest.mark.parametrize("mode,extra", [("tbptt", {"seq_len": 6, "k1": 2, "k2": 4}),
+                                        ("bptt", {"loss": "st-linear", "remat": True})])
+def test_training_variants_run(tiny_data, tmp_path, mode, extra):
+    config = _config(tiny_data, epochs=1, mode=mode, **extra)
+    _, hist = train.train_and_evaluate(config, tmp_path, progress=False)
+    assert np.isfinite(hist[0]["train_loss"]) and np.isfinite(hist[0]["val_psnr"])
+
+
+def test_train_loss_decreases(tiny_data, tmp_path):
+    config = _config(tiny_data, epochs=4, steps_per_epoch=6, lr=3e-3, crop=32, batch=4)
+    _, hist = train.train_and_evaluate(config, tmp_path, progress=False)
+    assert hist[-1]["train_loss"] < hist[0]["train_loss"]
+
+
+def test_cli_train_evaluate_upsample(tiny_data, tmp_path, capsys):
+    work = tmp_path / "run"
+    assert train.main(["--preset", "tiny", "--dataset", tiny_data, "--workdir", str(work),
+                       "--epochs", "1", "--quiet", "--no-eval"]) == 0
+    ckpt = work / "checkpoint.msgpack"
+    assert ckpt.exists()
+    out = tmp_path / "eval"
+    assert evaluate.main(["--dataset", tiny_data, "--factor", "4", "--models", "jau", "tus",
+                          f"mine={ckpt}", "--out", str(out), "--json", "--quiet"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert set(summary["4"]) == {"jau", "tus", "mine"}
+    for name in ("results.md", "results.json", "per_frame_x4.png", "crops_x4.png"):
+        assert (out / name).exists()
+    frames_dir = tmp_path / "frames"
+    assert upsample.main(["--input", tiny_data, "--factor", "4", "--model", f"mine={ckpt}",
+                          "--out", str(frames_dir), "--mp4", str(tmp_path / "v.mp4")]) == 0
+    assert len(os.listdir(frames_dir)) == 8 and (tmp_path / "v.mp4").stat().st_size > 0
+    assert train.main(["--preset", "tiny", "--dataset", tiny_data, "--mode", "tbptt",
+                       "--k1", "3", "--k2", "2", "--workdir", str(tmp_path / "bad"),
+                       "--quiet", "--no-eval"]) == 2
+    assert "k1 <= k2" in capsys.readouterr().err
+    assert evaluate.main(["--dataset", tiny_data, "--models", "nerf", "--out",
+                          str(out), "--quiet"]) == 2
