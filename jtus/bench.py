@@ -1,0 +1,301 @@
+"""``python -m jtus.bench``: time per frame and per training step, against the machine's
+peak and against the PyTorch reference, all measured in one run.
+
+    python -m jtus.bench                                   # DLCTUS, 720p and 1080p, 2x and 4x
+    python -m jtus.bench --models dlctus jau tus --sizes 720p --factors 4 --json
+    python -m jtus.bench --what train --train-crop 128 --train-seq 8 --train-batch 4
+
+Every timing is jitted, warm (the first call compiles and is not counted), blocked
+until ready, and the median of ``--repeats`` runs. The peak is a large float32 matmul
+and two convolutions (DLCTUS's own 3x3 32->32 layer at the 1080p network size, and a
+3x3 64->64 one), timed in the same run, so ratios are taken side by side on a noisy
+machine. The PyTorch reference (``tests/torch_dlctus.py``, needs ``torch`` and a
+source checkout) runs the same workloads; ratios are torch time / jtus time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+SIZES = {"720p": (720, 1280), "1080p": (1080, 1920), "256": (256, 256), "64": (64, 64)}
+
+
+def hardware():
+    name = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    name = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    dev = jax.devices()[0]
+    return {"cpu": name, "cores": os.cpu_count(), "jax": jax.__version__,
+            "backend": dev.platform, "device": getattr(dev, "device_kind", str(dev))}
+
+
+def timeit(fn, repeats=5):
+    """Median seconds of ``fn()`` (which must block) after one warm-up call."""
+    fn()
+    ts = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t0)
+    return float(np.median(ts))
+
+
+def peaks(repeats):
+    out = {}
+    n = 2048
+    a = jnp.asarray(np.random.default_rng(0).normal(size=(n, n)), jnp.float32)
+    mm = jax.jit(lambda x: x @ x)
+    out["matmul_gflops"] = 2 * n ** 3 / timeit(lambda: mm(a).block_until_ready(), repeats) / 1e9
+    from jtus.models import layers
+    for name, (h, w, c) in {"conv_dlctus_gflops": (270, 480, 32),
+                            "conv_64_gflops": (256, 256, 64)}.items():
+        x = jnp.asarray(np.random.default_rng(1).normal(size=(1, h, w, c)), jnp.float32)
+        k = jnp.asarray(np.random.default_rng(2).normal(size=(3, 3, c, c)), jnp.float32) * 0.05
+        cv = jax.jit(lambda x, k: layers.conv(x, k))
+        flops = h * w * c * c * 9 * 2
+        out[name] = flops / timeit(lambda: cv(x, k).block_until_ready(), repeats) / 1e9
+    return out
+
+
+def _inputs(h, w, b=1, seed=0):
+    from jtus.frame import Frame
+    r = np.random.default_rng(seed)
+    return Frame(jnp.asarray(r.uniform(size=(b, h, w, 3)), jnp.float32),
+                 jnp.asarray(r.uniform(0.5, 1.0, size=(b, h, w, 1)), jnp.float32),
+                 jnp.asarray(r.normal(scale=0.5, size=(b, h, w, 2)), jnp.float32),
+                 jnp.asarray(r.uniform(size=(b, 2)), jnp.float32))
+
+
+def bench_infer(name, factor, size, repeats, dtype="float32"):
+    from jtus import cost, models
+    from jtus.models import dlctus
+
+    H, W = size
+    over = {"dtype": dtype} if name == "dlctus" else {}
+    model = models.build(name, factor, **over)
+    params = model.init(jax.random.PRNGKey(0))
+    frame = _inputs(H // factor, W // factor)
+    state = [model.init_state(frame)]
+    step = jax.jit(model.step, donate_argnums=(1,))
+
+    def run():
+        out, state[0] = step(params, state[0], frame)
+        out.block_until_ready()
+
+    seconds = timeit(run, repeats)
+    c = cost.cost(name, model.config, H, W)
+    rec = {"model": name, "factor": factor, "size": f"{H}x{W}", "dtype": dtype,
+           "ms": seconds * 1e3, "gflop": c.flops / 1e9, "gflops": c.flops / seconds / 1e9,
+           "mbytes": c.bytes / 1e6}
+    if name == "dlctus":
+        net_in, _, _ = dlctus.prepare(state[0], frame, model.config)
+        net = jax.jit(lambda p, x: dlctus.network(p, x, model.config))
+        ns = timeit(lambda: net(params, net_in).block_until_ready(), repeats)
+        rec.update(network_ms=ns * 1e3, network_gflops=c.network_flops / ns / 1e9)
+    return rec
+
+
+def bench_train(factor, crop, batch, seq, loss_frames, repeats, remat=False, unroll=1):
+    import optax
+
+    from jtus import losses, rollout, train
+    from jtus.models import dlctus
+
+    model = dlctus.make(dlctus.Config(factor=factor))
+    opt = optax.adam(1e-4)
+    ts = [train.create_train_state(model.init(jax.random.PRNGKey(0)), opt)]
+    step = train.make_train_step(model, losses.make("l1", factor), opt, loss_frames=loss_frames,
+                                 remat=remat, unroll=unroll)
+    h = crop // factor
+    frames = [_inputs(h, h, batch, seed=t) for t in range(seq)]
+    frames = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *frames)
+    frames = frames._replace(reset=jnp.zeros((seq, batch), bool).at[0].set(True))
+    targets = jnp.asarray(np.random.default_rng(9).uniform(size=(seq, batch, crop, crop, 3)),
+                          jnp.float32)
+
+    def run():
+        carry = rollout.start(model.init_state(jax.tree_util.tree_map(lambda x: x[0], frames)),
+                              targets[0])
+        ts[0], _, stats = step(ts[0], carry, frames, targets)
+        stats["loss"].block_until_ready()
+
+    return {"factor": factor, "crop": crop, "batch": batch, "seq": seq, "loss_frames": loss_frames,
+            "remat": remat, "s_per_step": timeit(run, repeats)}
+
+
+def _torch():
+    try:
+        import torch
+
+        from tests import torch_dlctus
+    except ImportError:
+        return None, None
+    torch.set_num_threads(os.cpu_count())
+    return torch, torch_dlctus
+
+
+def torch_infer(factor, size, repeats):
+    torch, ref = _torch()
+    if torch is None:
+        return None
+    H, W = size
+    h, w = H // factor, W // factor
+    r = np.random.default_rng(0)
+    t = lambda a: torch.from_numpy(np.ascontiguousarray(a, np.float32))  # noqa: E731
+    color = t(r.uniform(size=(1, 3, h, w)))
+    depth = t(r.uniform(0.5, 1.0, size=(1, 1, h, w)))
+    motion = t(r.normal(scale=0.5, size=(1, 2, h, w)))
+    jitter = t(r.uniform(size=(1, 2)))
+    net = ref.Net().to(memory_format=torch.channels_last)
+    hist = [ref.init_history(color, jitter, factor)]
+
+    def run():
+        with torch.no_grad():
+            _, hist[0] = ref.step(net, hist[0], color, depth, motion, jitter, factor)
+
+    return timeit(run, repeats)
+
+
+def torch_train(factor, crop, batch, seq, loss_frames, repeats):
+    torch, ref = _torch()
+    if torch is None:
+        return None
+    h = crop // factor
+    r = np.random.default_rng(0)
+    t = lambda a: torch.from_numpy(np.ascontiguousarray(a, np.float32))  # noqa: E731
+    xs = [(t(r.uniform(size=(batch, 3, h, h))), t(r.uniform(0.5, 1, size=(batch, 1, h, h))),
+           t(r.normal(scale=0.5, size=(batch, 2, h, h))), t(r.uniform(size=(batch, 2))))
+          for _ in range(seq)]
+    targets = [t(r.uniform(size=(batch, 3, crop, crop))) for _ in range(seq)]
+    net = ref.Net()
+    opt = torch.optim.Adam(net.parameters(), lr=1e-4)
+
+    def run():
+        opt.zero_grad()
+        hist = ref.init_history(xs[0][0], xs[0][3], factor)
+        loss = 0
+        for i, (c, d, m, j) in enumerate(xs):
+            out, hist = ref.step(net, hist, c, d, m, j, factor)
+            if i >= seq - loss_frames:
+                loss = loss + (out - targets[i]).abs().mean()
+        (loss / loss_frames).backward()
+        opt.step()
+
+    return timeit(run, repeats)
+
+
+def run(args):
+    report = {"hardware": hardware(), "command": "python -m jtus.bench " + " ".join(args.argv)}
+    if "peak" in args.what:
+        report["peak"] = peaks(args.repeats)
+    if "infer" in args.what:
+        rows = []
+        for name in args.models:
+            for size in args.sizes:
+                for f in args.factors:
+                    for dt in (args.dtypes if name == "dlctus" else ["float32"]):
+                        rec = bench_infer(name, f, SIZES[size], args.repeats, dt)
+                        if name == "dlctus" and dt == "float32" and args.torch:
+                            ts = torch_infer(f, SIZES[size], args.repeats)
+                            if ts is not None:
+                                rec.update(torch_ms=ts * 1e3, torch_over_jtus=ts * 1e3 / rec["ms"])
+                        rows.append(rec)
+                        _progress(rec)
+        report["infer"] = rows
+    if "train" in args.what:
+        rec = bench_train(args.factors[0], args.train_crop, args.train_batch, args.train_seq,
+                          args.train_loss_frames, args.repeats)
+        if args.torch:
+            ts = torch_train(args.factors[0], args.train_crop, args.train_batch, args.train_seq,
+                             args.train_loss_frames, args.repeats)
+            if ts is not None:
+                rec.update(torch_s_per_step=ts, torch_over_jtus=ts / rec["s_per_step"])
+        report["train"] = rec
+        _progress(rec)
+    return report
+
+
+def _progress(rec):
+    print("  " + ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                           for k, v in rec.items()), file=sys.stderr)
+
+
+def markdown(report):
+    hw = report["hardware"]
+    lines = [f"Hardware: {hw['cpu']}, {hw['cores']} cores, JAX {hw['jax']} on {hw['backend']}.",
+             f"Command: `{report['command']}`", ""]
+    if "peak" in report:
+        p = report["peak"]
+        lines += [f"Peak (same run): matmul 2048^3 {p['matmul_gflops']:.1f} GFLOP/s; "
+                  f"3x3 conv 32->32 at 270x480 {p['conv_dlctus_gflops']:.1f} GFLOP/s; "
+                  f"3x3 conv 64->64 at 256x256 {p['conv_64_gflops']:.1f} GFLOP/s.", ""]
+    if "infer" in report:
+        lines += ["| model | size | factor | dtype | ms/frame | GFLOP/frame | GFLOP/s | "
+                  "network ms | network GFLOP/s | % of conv peak | torch ms | torch/jtus |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+        conv_peak = report.get("peak", {}).get("conv_dlctus_gflops")
+        for r in report["infer"]:
+            pct = (f"{100 * r['network_gflops'] / conv_peak:.0f}%"
+                   if conv_peak and "network_gflops" in r else "")
+            lines.append(
+                f"| {r['model']} | {r['size']} | {r['factor']}x | {r['dtype']} | {r['ms']:.1f} | "
+                f"{r['gflop']:.2f} | {r['gflops']:.1f} | {r.get('network_ms', float('nan')):.1f} | "
+                f"{r.get('network_gflops', float('nan')):.1f} | {pct} | "
+                f"{r.get('torch_ms', float('nan')):.1f} | {r.get('torch_over_jtus', float('nan')):.2f} |")
+        lines.append("")
+    if "train" in report:
+        r = report["train"]
+        lines += [f"Training step (DLCTUS {r['factor']}x, crop {r['crop']}, batch {r['batch']}, "
+                  f"sequence {r['seq']}, loss on the last {r['loss_frames']}, Adam): "
+                  f"jtus {r['s_per_step']:.3f} s, PyTorch {r.get('torch_s_per_step', float('nan')):.3f} s, "
+                  f"torch/jtus {r.get('torch_over_jtus', float('nan')):.2f}."]
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    argv = list(sys.argv[1:] if argv is None else argv)
+    p = argparse.ArgumentParser(prog="python -m jtus.bench", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--what", nargs="+", choices=("peak", "infer", "train"),
+                   default=["peak", "infer", "train"])
+    p.add_argument("--models", nargs="+", default=["dlctus"])
+    p.add_argument("--sizes", nargs="+", choices=tuple(SIZES), default=["720p", "1080p"])
+    p.add_argument("--factors", nargs="+", type=int, default=[2, 4])
+    p.add_argument("--dtypes", nargs="+", default=["float32"],
+                   choices=("float32", "bfloat16", "float16"))
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--train-crop", type=int, default=128)
+    p.add_argument("--train-batch", type=int, default=4)
+    p.add_argument("--train-seq", type=int, default=8)
+    p.add_argument("--train-loss-frames", type=int, default=5)
+    p.add_argument("--torch", action=argparse.BooleanOptionalAction, default=True,
+                   help="also time the PyTorch reference")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--out", help="write the JSON report here")
+    args = p.parse_args(argv)
+    args.argv = argv
+    report = run(args)
+    if args.out:
+        with open(args.out, "w") as fh:
+            json.dump(report, fh, indent=1)
+    print(json.dumps(report, indent=1) if args.json else markdown(report))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
