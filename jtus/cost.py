@@ -56,10 +56,58 @@ def _tus(config, H, W):
     return Cost(scaled + warp + rect + blend, 0.0, compulsory, compulsory)
 
 
+def _conv(kernel_shape, px):
+    kh, kw, ci, co = kernel_shape[-4:]
+    return (kh * kw * ci * co * 2 + co) * px
+
+
+def _nsrr(config, H, W):
+    import jax
+
+    from jtus.models import nsrr
+    p = jax.eval_shape(lambda: nsrr.init(jax.random.PRNGKey(0), config))
+    px, lr = H * W, H * W // config.factor ** 2
+    ext = sum(_conv(q["kernel"].shape, lr) for k in ("extract_current", "extract_previous")
+              for q in p[k])
+    rew = sum(_conv(q["kernel"].shape, px) for q in p["reweight"])
+    scales = [px, px, px // 4, px // 4, px // 16, px // 16, px // 4, px // 4, px, px]
+    unet = sum(_conv(q["kernel"].shape, n) for q, n in zip(p["unet"], scales))
+    feats = nsrr.FEATURES * config.frames
+    warp = px * feats * 4 * 2
+    compulsory = 4 * (lr * 6 + 2 * px * feats + px * 3)
+    act = 4 * 2 * px * (sum(config.unet_widths()) + feats * 2)
+    return Cost(ext + rew + unet + warp + px * feats, ext + rew + unet, compulsory,
+                compulsory + act)
+
+
+def _kpn(config, H, W):
+    import jax
+
+    from jtus.models import kpn
+    p = jax.eval_shape(lambda: kpn.init(jax.random.PRNGKey(0), config))
+    px, lr = H * W, H * W // config.factor ** 2
+    net = sum(_conv(p[k]["kernel"].shape, px) for k in ("conv1", "conv2", "conv3", "hidden",
+                                                        "kernel"))
+    n = 2 * kpn.K * kpn.K
+    apply = px * (n * 3 * 2 + n * 4)  # the two kernels on 3 channels, softmax
+    warp = px * (16 * 8 * 2 + 20) + px * 4 * 3 * 2
+    compulsory = 4 * (lr * 6 + 2 * px * 8 + px * 3)
+    act = 4 * 2 * px * (kpn.IN_CHANNELS + 3 * config.width + n + kpn.HIDDEN)
+    return Cost(net + apply + warp, net, compulsory, compulsory + act)
+
+
+def _mlp(config, H, W):
+    lr = H * W // config.factor ** 2
+    sizes = (50,) + tuple(config.hidden) + (config.factor ** 2,)
+    dense = sum(i * o * 2 + o for i, o in zip(sizes[:-1], sizes[1:])) * lr * 3
+    compulsory = 4 * (lr * 4 + H * W * 3)
+    return Cost(dense + lr * 3 * 60, dense, compulsory, compulsory + 4 * 2 * lr * 3 * sum(sizes))
+
+
 def cost(model_name, config, H, W) -> Cost:
     """``model_name`` as in ``jtus.models.NAMES`` (its module decides the formula)."""
     kind = model_name.split("-")[0]
-    fns = {"dlctus": _dlctus, "jau": _jau, "tus": _tus}
+    fns = {"dlctus": _dlctus, "jau": _jau, "tus": _tus, "nsrr": _nsrr, "kpn": _kpn, "mlp": _mlp}
     if kind not in fns:
         raise ValueError(f"cost: no formula for model {model_name!r}")
     return fns[kind](config, H, W)

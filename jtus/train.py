@@ -141,8 +141,9 @@ class Config:
                              f"got {self.loss_frames}")
         if self.mode == "tbptt":
             rollout.tbptt_windows(self.seq_len, self.k1, self.k2)
-        if self.loss not in losses.NAMES:
-            raise ValueError(f"loss: expected one of {losses.NAMES}, got {self.loss!r}")
+        if self.loss not in losses.NAMES + ("kpn",):
+            raise ValueError(f"loss: expected one of {losses.NAMES + ('kpn',)}, "
+                             f"got {self.loss!r}")
 
 
 PRESETS = {
@@ -169,7 +170,19 @@ def _model(config: Config):
 
 
 def _loss(config: Config):
+    if config.loss == "kpn":  # Herveau et al.'s alias-masked reference/gradient/temporal loss
+        from jtus.models import kpn
+        return kpn.make_loss(config.factor)
     return losses.make(config.loss, config.factor, theta=config.theta)
+
+
+def _accept(config: Config):
+    """The MLP upscaler keeps training crops with a probability rising with their
+    gradient magnitude (Spencer); the other models take every crop."""
+    if config.model == "mlp":
+        from jtus.models import mlp
+        return mlp.acceptance
+    return None
 
 
 def _optimizer(config: Config):
@@ -366,7 +379,7 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
                        disable=not progress, leave=False)
             for _ in bar:
                 frames, targets = ds.crops("train", config.factor, config.batch, config.seq_len,
-                                           config.crop, rng)
+                                           config.crop, rng, accept=_accept(config))
                 frames, targets = jax.tree_util.tree_map(jnp.asarray, (frames, targets))
                 carry = _start_carry(model, frames, targets)
                 if mesh is not None:

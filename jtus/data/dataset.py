@@ -215,7 +215,8 @@ class Dataset:
                       x["motion"][:][:, None], x["jitter"][:][:, None], reset[:, None])
         return frame, g["target"][:].astype(np.float32)[:, None]
 
-    def crops(self, split, factor, batch, seq_len, crop, rng, return_index=False):
+    def crops(self, split, factor, batch, seq_len, crop, rng, return_index=False, accept=None,
+              max_tries=20):
         """Random aligned crops: ``(Frame [T,B,...], targets [T,B,crop,crop,3])``.
 
         The HR crop starts at a multiple of ``factor`` so that the LR crop lies exactly
@@ -235,14 +236,19 @@ class Dataset:
         cols = {k: [] for k in ("color", "depth", "motion", "jitter", "reset", "target")}
         index = []
         for _ in range(batch):
-            name = names[rng.integers(len(names))]
-            g = self.file[f"{split}/{name}"]
-            T = g["target"].shape[0]
-            if seq_len > T:
-                raise ValueError(f"seq_len: {seq_len} exceeds the video length {T}")
-            t0 = int(rng.integers(0, T - seq_len + 1))
-            y = int(rng.integers(0, (H - crop) // factor + 1))
-            xx = int(rng.integers(0, (W - crop) // factor + 1))
+            for _ in range(max_tries):
+                name = names[rng.integers(len(names))]
+                g = self.file[f"{split}/{name}"]
+                T = g["target"].shape[0]
+                if seq_len > T:
+                    raise ValueError(f"seq_len: {seq_len} exceeds the video length {T}")
+                t0 = int(rng.integers(0, T - seq_len + 1))
+                y = int(rng.integers(0, (H - crop) // factor + 1))
+                xx = int(rng.integers(0, (W - crop) // factor + 1))
+                if accept is None or rng.uniform() < accept(
+                        g["target"][t0:t0 + seq_len, y * factor:y * factor + crop,
+                                    xx * factor:xx * factor + crop]):
+                    break
             x = g[f"x{factor}"]
             index.append((name, t0, y, xx))
             ts = slice(t0, t0 + seq_len)

@@ -1,14 +1,15 @@
 """Every system as ``make(config) -> Model(init, init_state, step, config)``.
 
 ``build(name, factor, **overrides)`` names them for the CLIs: ``dlctus``,
-``jau`` / ``jau-bicubic``, ``tus`` (the thesis's preset) / ``tus-clip``.
+``jau`` / ``jau-bicubic``, ``tus`` (the thesis's preset) / ``tus-clip``, ``nsrr`` /
+``nsrr-fast``, ``kpn``, ``mlp``.
 """
 
 from __future__ import annotations
 
 import dataclasses
 
-from jtus.models import dlctus, jau, tus
+from jtus.models import dlctus, jau, kpn, mlp, nsrr, tus
 from jtus.models.base import Model, param_count
 
 _BUILDERS = {
@@ -17,9 +18,13 @@ _BUILDERS = {
     "jau-bicubic": lambda f: (jau, jau.Config(factor=f, method="bicubic")),
     "tus": lambda f: (tus, tus.PRESETS["tus"](f)),
     "tus-clip": lambda f: (tus, tus.PRESETS["tus-clip"](f)),
+    "nsrr": lambda f: (nsrr, nsrr.Config(factor=f)),
+    "nsrr-fast": lambda f: (nsrr, nsrr.Config(factor=f, fast=True)),
+    "kpn": lambda f: (kpn, kpn.Config(factor=f)),
+    "mlp": lambda f: (mlp, mlp.Config(factor=f)),
 }
 NAMES = tuple(_BUILDERS)
-TRAINABLE = ("dlctus",)
+TRAINABLE = ("dlctus", "nsrr", "nsrr-fast", "kpn", "mlp")
 
 
 def config_for(name, factor, **overrides):
@@ -34,5 +39,5 @@ def build(name, factor, **overrides) -> Model:
     return module.make(config)
 
 
-__all__ = ["Model", "NAMES", "TRAINABLE", "build", "config_for", "dlctus", "jau", "param_count",
-           "tus"]
+__all__ = ["Model", "NAMES", "TRAINABLE", "build", "config_for", "dlctus", "jau", "kpn", "mlp",
+           "nsrr", "param_count", "tus"]

@@ -89,3 +89,20 @@ def _fast_bwd(res, g):
 
 
 conv_edge_fast.defvjp(_fast_fwd, _fast_bwd)
+
+
+def conv_same(x, p, stride=1):
+    """A zero-padded ('SAME') convolution with a ``{"kernel", "bias"}`` dict."""
+    return conv(x, p["kernel"], p["bias"], stride=stride)
+
+
+def mlp_init(key, sizes):
+    """Dense layers ``[{"kernel": [i, o], "bias": [o]}]`` with PyTorch's Linear init."""
+    keys = jax.random.split(key, len(sizes) - 1)
+    out = []
+    for k, (i, o) in zip(keys, zip(sizes[:-1], sizes[1:])):
+        bound = 1.0 / math.sqrt(i)
+        kk, kb = jax.random.split(k)
+        out.append({"kernel": jax.random.uniform(kk, (i, o), jnp.float32, -bound, bound),
+                    "bias": jax.random.uniform(kb, (o,), jnp.float32, -bound, bound)})
+    return out

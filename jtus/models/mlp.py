@@ -1,0 +1,90 @@
+"""The MLP upscaler (Spencer, *Deep Upscaling*): a per-input-pixel multilayer
+perceptron on 5x5 patches.
+
+For each LR pixel and each colour channel (weights shared across channels): the 5x5
+patch of that channel and the 5x5 patch of linear depth, each with its mean removed
+(the DC term, which otherwise makes the network a bilinear filter), optionally
+boosted by a signed gamma ramp; two hidden layers of 50 with leaky ReLU; an output of
+f x f sub-pixels, to which the colour patch's mean is added back; pixel shuffle to HR.
+Stateless (the original is single-frame). Borders replicate the edge.
+
+Training patches are accepted with a probability rising with their gradient
+magnitude (``acceptance``), as in the original's data pipeline.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+
+from jtus import sampling
+from jtus.data.conventions import linearize_depth
+from jtus.frame import Frame
+from jtus.models import layers
+from jtus.models.base import Model
+
+P = 5
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    factor: int = 4
+    hidden: tuple = (50, 50)
+    gamma: float = 1.0        # residual boost: sign(r) |r|^(1/gamma)
+    slope: float = 0.01       # leaky ReLU
+    near: float = 0.1
+    far: float = 100.0
+
+
+def init(key, config: Config = Config()):
+    sizes = (2 * P * P,) + tuple(config.hidden) + (config.factor ** 2,)
+    return {"layers": layers.mlp_init(key, sizes)}
+
+
+def _patches(x):
+    """``[B,h,w,C]`` -> ``[B,h,w,C,25]``, edge-replicated 5x5 neighbourhoods."""
+    r = P // 2
+    h, w = x.shape[1:3]
+    p = jnp.pad(x, ((0, 0), (r, r), (r, r), (0, 0)), mode="edge")
+    return jnp.stack([p[:, dy:dy + h, dx:dx + w] for dy in range(P) for dx in range(P)], -1)
+
+
+def _boost(r, gamma):
+    return r if gamma == 1.0 else jnp.sign(r) * jnp.abs(r) ** (1.0 / gamma)
+
+
+def step(params, state, frame: Frame, config: Config = Config()):
+    color = frame.color.astype(jnp.float32)
+    depth = linearize_depth(frame.depth.astype(jnp.float32), config.near, config.far)
+    cp = _patches(color)                                 # [B,h,w,3,25]
+    dp = _patches(depth)                                 # [B,h,w,1,25]
+    cmean = cp.mean(-1, keepdims=True)
+    x = jnp.concatenate([_boost(cp - cmean, config.gamma),
+                         jnp.broadcast_to(_boost(dp - dp.mean(-1, keepdims=True), config.gamma),
+                                          cp.shape)], -1)  # [B,h,w,3,50]
+    for i, lyr in enumerate(params["layers"]):
+        x = x @ lyr["kernel"] + lyr["bias"]
+        if i < len(params["layers"]) - 1:
+            x = jax.nn.leaky_relu(x, config.slope)
+    out = x + cmean                                      # [B,h,w,3,f*f]
+    b, h, w = color.shape[:3]
+    out = out.reshape(b, h, w, 3 * config.factor ** 2)  # channel c*f*f + sub-pixel
+    return sampling.pixel_shuffle(out, config.factor), state
+
+
+def acceptance(target, scale=0.05):
+    """Probability of keeping a training crop ``[T,H,W,3]``: rises with its mean
+    gradient magnitude, ``min(1, g / scale)``, with a floor so flat crops still occur."""
+    import numpy as np
+
+    t = np.asarray(target, np.float32).mean(-1)
+    g = np.abs(np.diff(t, axis=-1)).mean() + np.abs(np.diff(t, axis=-2)).mean()
+    return float(min(1.0, max(0.05, g / scale)))
+
+
+def make(config: Config = Config()) -> Model:
+    return Model(init=lambda key: init(key, config), init_state=lambda frame: (),
+                 step=lambda params, state, frame: step(params, state, frame, config),
+                 config=config)

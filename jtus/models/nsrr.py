@@ -1,0 +1,181 @@
+"""NSRR: Neural Supersampling for Real-time Rendering (Xiao et al. 2020, sec. 3.2-3.4).
+
+Per frame, with up-sampling factor f and ``frames`` previous frames (4 in the paper):
+
+1. feature extraction at LR: a 3-layer 3x3 network maps RGB-D to 8 learned features,
+   concatenated with RGB-D (12 channels); the current frame has its own network, the
+   previous frames share another (run on each frame when it is current and kept);
+2. zero-up-sampling of the 12 channels to HR; the previous frames' zero-up-sampled
+   features travel in the state and are backward-warped, bilinearly with zero padding,
+   by the current frame's up-sampled motion: iterated frame after frame, each previous
+   frame reaches the current one through every motion field in between;
+3. feature reweighting: a 3-layer network on the current RGB-D and the warped previous
+   RGB-D gives one map per previous frame, ``10 * (tanh + 1) / 2`` in [0, 10], which
+   scales all 12 features of that frame;
+4. reconstruction: a 3-scale, 10-layer U-Net (max-pooling down, bilinear up, skip
+   concatenations) on the current and reweighted previous features gives RGB (or YCbCr
+   when ``ycbcr``, converted back).
+
+Channel widths are configurable. The paper gives them only in its Figure 4, which
+our copy of the paper lacks; the defaults (feature extraction 32-32-8, reweighting
+32-32-frames, U-Net 64-32 / 64-64 / 128-128 / 64-64 / 32-3) are our reading of it, and
+``fast`` halves every U-Net width but the last (sec. 4.1). Depth is linear in [0,1]
+(thesis sec. 4.5).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jtus import sampling
+from jtus.data.conventions import linearize_depth
+from jtus.frame import Frame
+from jtus.models import layers
+from jtus.models.base import Model
+
+FEATURES = 12  # 8 learned + RGB-D
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    factor: int = 4
+    frames: int = 4
+    extract: tuple = (32, 32, 8)
+    reweight: tuple = (32, 32)
+    unet: tuple = (64, 32, 64, 64, 128, 128, 64, 64, 32)
+    fast: bool = False
+    ycbcr: bool = False
+    scale: float = 10.0
+    near: float = 0.1
+    far: float = 100.0
+
+    def __post_init__(self):
+        if self.extract[-1] != FEATURES - 4:
+            raise ValueError(f"extract: the last width must be {FEATURES - 4}, got {self.extract}")
+        if len(self.unet) != 9:
+            raise ValueError(f"unet: expected 9 widths (the 10th layer outputs 3), got {self.unet}")
+        if self.frames < 1:
+            raise ValueError(f"frames: expected >= 1, got {self.frames}")
+
+    def unet_widths(self):
+        return tuple(max(1, w // 2) for w in self.unet) if self.fast else self.unet
+
+
+class State(NamedTuple):
+    previous: jax.Array  # [B,H,W,frames*12] zero-up-sampled features in the last frame's view
+
+
+def _conv_init(key, k, ci, co):
+    return layers.torch_uniform_init(key, (k, k, ci, co))
+
+
+def _stack(key, widths, ci):
+    keys = jax.random.split(key, len(widths))
+    out = []
+    for k, co in zip(keys, widths):
+        out.append(_conv_init(k, 3, ci, co))
+        ci = co
+    return out
+
+
+def init(key, config: Config = Config()):
+    k = jax.random.split(key, 4)
+    n = config.frames
+    u = config.unet_widths()
+    cin = FEATURES * (1 + n)
+    unet_in = [cin, u[0], u[1], u[2], u[3], u[4], u[5] + u[3], u[6], u[7] + u[1], u[8]]
+    unet_out = list(u) + [3]
+    ku = jax.random.split(k[3], 10)
+    return {"extract_current": _stack(k[0], config.extract, 4),
+            "extract_previous": _stack(k[1], config.extract, 4),
+            "reweight": _stack(k[2], tuple(config.reweight) + (n,), 4 + 4 * n),
+            "unet": [_conv_init(kk, 3, i, o) for kk, i, o in zip(ku, unet_in, unet_out)]}
+
+
+def _run(stack, x, last_relu=True):
+    for i, p in enumerate(stack):
+        x = layers.conv_same(x, p)
+        if last_relu or i < len(stack) - 1:
+            x = jax.nn.relu(x)
+    return x
+
+
+def _pool(x):
+    b, h, w, c = x.shape
+    return x.reshape(b, h // 2, 2, w // 2, 2, c).max((2, 4))
+
+
+def _unet(ps, x):
+    relu = jax.nn.relu
+    s1 = relu(layers.conv_same(relu(layers.conv_same(x, ps[0])), ps[1]))
+    s2 = relu(layers.conv_same(relu(layers.conv_same(_pool(s1), ps[2])), ps[3]))
+    s3 = relu(layers.conv_same(relu(layers.conv_same(_pool(s2), ps[4])), ps[5]))
+    u2 = jnp.concatenate([sampling.upsample(s3, 2), s2], -1)
+    u2 = relu(layers.conv_same(relu(layers.conv_same(u2, ps[6])), ps[7]))
+    u1 = jnp.concatenate([sampling.upsample(u2, 2), s1], -1)
+    return layers.conv_same(relu(layers.conv_same(u1, ps[8])), ps[9])
+
+
+def _rgbd(frame, config):
+    color = frame.color.astype(jnp.float32)
+    if config.ycbcr:
+        color = sampling.rgb_to_ycbcr(color)
+    depth = linearize_depth(frame.depth.astype(jnp.float32), config.near, config.far)
+    return jnp.concatenate([color, depth], -1)
+
+
+def init_state(frame: Frame, config: Config = Config()) -> State:
+    b, h, w, _ = frame.color.shape
+    f = config.factor
+    return State(jnp.zeros((b, h * f, w * f, FEATURES * config.frames), jnp.float32))
+
+
+def features(params, frame, config):
+    """(current features, this frame's features as a future previous frame), HR."""
+    f = config.factor
+    rgbd = _rgbd(frame, config)
+    jit = frame.jitter.astype(jnp.float32)
+    cur = jnp.concatenate([rgbd, _run(params["extract_current"], rgbd)], -1)
+    prev = jnp.concatenate([rgbd, _run(params["extract_previous"], rgbd)], -1)
+    return sampling.zero_upsample(cur, jit, f), sampling.zero_upsample(prev, jit, f)
+
+
+def reweight_maps(params, cur, warped, config):
+    """The per-previous-frame weights ``[B,H,W,frames]`` in [0, scale]."""
+    n = config.frames
+    rgbd_prev = [warped[..., i * FEATURES:i * FEATURES + 4] for i in range(n)]
+    x = jnp.concatenate([cur[..., :4]] + rgbd_prev, -1)
+    t = jnp.tanh(_run(params["reweight"], x, last_relu=False))
+    return config.scale * (t + 1) / 2
+
+
+def step(params, state: State, frame: Frame, config: Config = Config()):
+    f = config.factor
+    b, h, w, _ = frame.color.shape
+    previous = state.previous
+    if frame.reset is not None:
+        previous = jnp.where(frame.reset[:, None, None, None], 0.0, previous)
+    cur, as_prev = features(params, frame, config)
+    xy = sampling.pixel_grid(b, h * f, w * f) + f * sampling.upsample(
+        frame.motion.astype(jnp.float32), f)
+    warped, inside = sampling.sample(previous, xy, "bilinear", return_mask=True)
+    warped = jnp.where(inside, warped, 0.0)
+    wts = reweight_maps(params, cur, warped, config)
+    n = config.frames
+    scaled = [warped[..., i * FEATURES:(i + 1) * FEATURES] * wts[..., i:i + 1] for i in range(n)]
+    out = _unet(params["unet"], jnp.concatenate([cur] + scaled, -1))
+    if config.ycbcr:
+        out = sampling.ycbcr_to_rgb(out)
+    new_prev = jnp.concatenate([as_prev, warped[..., :FEATURES * (n - 1)]], -1)
+    return out, State(new_prev)
+
+
+def make(config: Config = Config()) -> Model:
+    return Model(init=lambda key: init(key, config),
+                 init_state=lambda frame: init_state(frame, config),
+                 step=lambda params, state, frame: step(params, state, frame, config),
+                 config=config)
