@@ -50,8 +50,19 @@ def _body(step, params, remat):
     return lambda state, frame: fn(params, state, frame)
 
 
-def outputs(step, params, state, frames, *, remat=False, unroll=1):
-    """Scan ``step`` over ``frames``; returns ``(outs [T,B,H,W,3], final state)``."""
+def _check(frames, check):
+    """The API boundary: reject malformed or non-finite inputs with a clear error.
+    Skipped when ``check`` is False or inside a trace (jitted hot loops)."""
+    if check and not any(isinstance(x, jax.core.Tracer)
+                         for x in jax.tree_util.tree_leaves(frames)):
+        from jtus.frame import validate
+        validate(frames, time_major=True, check_finite=True)
+
+
+def outputs(step, params, state, frames, *, remat=False, unroll=1, check=True):
+    """Scan ``step`` over ``frames``; returns ``(outs [T,B,H,W,3], final state)``.
+    ``check``: validate concrete inputs first (NaN/Inf, shapes); see ``_check``."""
+    _check(frames, check)
     body = _body(step, params, remat)
 
     def f(s, frame):
@@ -62,11 +73,12 @@ def outputs(step, params, state, frames, *, remat=False, unroll=1):
     return outs, state
 
 
-def metrics(step, params, state, frames, targets, metric_fn, *, unroll=1):
+def metrics(step, params, state, frames, targets, metric_fn, *, unroll=1, check=True):
     """Scan and reduce each frame with
     ``metric_fn(out, target, prev_out, prev_target, has_prev, frame) -> pytree``
     (the previous frame's output and target are carried, for temporal metrics);
     returns ``(per-frame metrics stacked over T, final state)``; no outputs kept."""
+    _check(frames, check)
     body = _body(step, params, False)
 
     def f(c, xs):
