@@ -81,12 +81,12 @@ def _inputs(h, w, b=1, seed=0):
                  jnp.asarray(r.uniform(size=(b, 2)), jnp.float32))
 
 
-def bench_infer(name, factor, size, repeats, dtype="float32"):
+def bench_infer(name, factor, size, repeats, dtype="float32", **overrides):
     from jtus import cost, models
     from jtus.models import dlctus
 
     H, W = size
-    over = {"dtype": dtype} if name == "dlctus" else {}
+    over = dict({"dtype": dtype} if name == "dlctus" else {}, **overrides)
     model = models.build(name, factor, **over)
     params = model.init(jax.random.PRNGKey(0))
     frame = _inputs(H // factor, W // factor)
@@ -99,7 +99,7 @@ def bench_infer(name, factor, size, repeats, dtype="float32"):
 
     seconds = timeit(run, repeats)
     c = cost.cost(name, model.config, H, W)
-    rec = {"model": name, "factor": factor, "size": f"{H}x{W}", "dtype": dtype,
+    rec = {"model": name, "factor": factor, "size": f"{H}x{W}", "dtype": dtype, **overrides,
            "ms": seconds * 1e3, "gflop": c.flops / 1e9, "gflops": c.flops / seconds / 1e9,
            "mbytes": c.bytes / 1e6}
     if name == "dlctus":

@@ -1,0 +1,75 @@
+"""Regenerate ``docs/results.md`` from the experiments' outputs, optionally running
+them first.
+
+    python experiments/make_results.py            # assemble from docs/results/*/
+    python experiments/make_results.py --run      # run every experiment, then assemble
+    python experiments/make_results.py --run --quick   # small settings, minutes
+
+Each section shows the table an experiment wrote, its plot, and the exact command and
+hardware that produced it (both recorded by the experiment itself).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+
+from common import RESULTS, ROOT  # noqa: E402
+
+SECTIONS = [
+    ("evaluation", "Evaluation: every system on the test videos", None),
+    ("pareto", "What accuracy costs in time (and the ablations of thesis Tables 13, 14, 16)",
+     "pareto.png"),
+    ("theta", "The θ sweep (thesis Table 10)", "theta.png"),
+    ("seqlen", "Sequence length, BPTT, truncated BPTT and remat", "seqlen.png"),
+    ("stability", "Long-run numerical stability", "stability.png"),
+]
+
+RUNS = {
+    "full": [["experiments/pareto.py", "--train-ablations"],
+             ["experiments/sweep_theta.py"],
+             ["experiments/sweep_seqlen.py"],
+             ["experiments/stability.py"]],
+    "quick": [["experiments/pareto.py", "--sizes", "256", "720p", "--max-videos", "4"],
+              ["experiments/sweep_theta.py", "--epochs", "1", "--steps-per-epoch", "40",
+               "--max-videos", "4"],
+              ["experiments/sweep_seqlen.py", "--lengths", "2", "4", "8", "--steps", "20",
+               "--long-frames", "320", "--long-size", "64", "--max-videos", "2"],
+              ["experiments/stability.py", "--frames", "600", "--size", "64"]],
+}
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--run", action="store_true")
+    p.add_argument("--quick", action="store_true")
+    args = p.parse_args(argv)
+    if args.run:
+        for cmd in RUNS["quick" if args.quick else "full"]:
+            print("+", " ".join(cmd), flush=True)
+            subprocess.run([sys.executable] + cmd, cwd=ROOT, check=True)
+    parts = ["# Results", "",
+             "Every table below is written by the experiment named under it, with its command "
+             "and hardware; `python experiments/make_results.py --run` regenerates them all "
+             "(`--quick` for small settings). Sections not yet run say so.", ""]
+    for name, title, img in SECTIONS:
+        parts += [f"## {title}", ""]
+        md = os.path.join(RESULTS, name, "result.md")
+        if os.path.exists(md):
+            with open(md) as fh:
+                parts.append(fh.read().strip())
+            if img and os.path.exists(os.path.join(RESULTS, name, img)):
+                parts += ["", f"![{name}](results/{name}/{img})"]
+        else:
+            parts.append(f"Not run yet: see `experiments/` (`{name}`).")
+        parts.append("")
+    with open(os.path.join(ROOT, "docs", "results.md"), "w") as fh:
+        fh.write("\n".join(parts))
+    print("wrote docs/results.md")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,138 @@
+"""The long stability runs: a zone plate moving at constant sub-pixel speed for 3600
+frames through DLCTUS (shipped weights) and TUS with each reprojection warp, and
+DLCTUS's float16 / bfloat16 rollouts of 1000 frames against float32.
+
+    python experiments/stability.py
+    python experiments/stability.py --frames 600 --size 64        # a quicker look
+
+The video is analytic: LR samples of ``0.5 + 0.4 cos(k r^2)`` taken at the thesis
+jitter positions, the target a 16-sample box filter, the motion exact and constant, so
+what changes over time is the methods' accumulated error alone.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from common import write  # noqa: E402
+
+from jtus import evaluate, metrics, models, rollout, sampling
+from jtus.frame import Frame
+
+WARPS = (("bilinear", -0.75), ("bicubic5", -0.75), ("bicubic9", -0.75), ("catmull_rom", -0.5),
+         ("bicubic", -0.75))
+
+
+def zoneplate_video(frames, size, factor, speed=(0.37, 0.11), k=18.0):
+    h = size // factor
+    seq = sampling.jitter_sequence("thesis", factor)
+
+    def f(x, y, t):  # x, y in HR-normalized units [0, 1]
+        cx, cy = 0.5 + speed[0] * t / size * factor, 0.5 + speed[1] * t / size * factor
+        return 0.5 + 0.4 * np.cos(k * ((x - cx) ** 2 + (y - cy) ** 2) * 4)
+
+    jj, ii = np.meshgrid(np.arange(h), np.arange(h))
+    off = (np.stack(np.meshgrid(np.arange(4), np.arange(4)), -1).reshape(-1, 2) + 0.5) / 4
+    YY, XX = np.mgrid[0:size, 0:size]
+    color, target, jit = [], [], []
+    for t in range(frames):
+        j = seq[t % len(seq)]
+        v = f((jj + j[0]) / h, (ii + j[1]) / h, t)
+        color.append(np.repeat(v[..., None], 3, -1))
+        acc = sum(f((XX + o[0]) / size, (YY + o[1]) / size, t) for o in off) / len(off)
+        target.append(np.repeat(acc[..., None], 3, -1))
+        jit.append(j)
+    T = frames
+    motion = np.broadcast_to(-np.asarray(speed, np.float32), (T, 1, h, h, 2))
+    reset = np.zeros((T, 1), bool)
+    reset[0] = True
+    fr = Frame(np.asarray(color, np.float32)[:, None], np.full((T, 1, h, h, 1), 0.9, np.float32),
+               np.ascontiguousarray(motion), np.asarray(jit, np.float32)[:, None], reset)
+    return jax.tree_util.tree_map(jnp.asarray, fr), jnp.asarray(np.asarray(target, np.float32)[:, None])
+
+
+def _curve(model, params, frames, targets):
+    def fn(out, target, *rest):
+        return {"psnr": metrics.psnr(out, target), "min": out.min(), "max": out.max()}
+    run = jax.jit(lambda p, s, f, t: rollout.metrics(model.step, p, s, f, t, fn, check=False)[0])
+    first = jax.tree_util.tree_map(lambda x: x[0], frames)
+    return {k: np.asarray(v).reshape(len(targets), -1)[:, 0] for k, v in
+            run(params, model.init_state(first), frames, targets).items()}
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--frames", type=int, default=3600)
+    p.add_argument("--precision-frames", type=int, default=1000)
+    p.add_argument("--size", type=int, default=96)
+    p.add_argument("--factor", type=int, default=4)
+    args = p.parse_args(argv)
+    frames, targets = zoneplate_video(args.frames, args.size, args.factor)
+    shipped = evaluate.resolve("shipped", args.factor)
+    rows, curves = [], {}
+    marks = [m for m in (100, 1000, args.frames) if m <= args.frames]
+    for system in ("tus", "dlctus"):
+        if system == "dlctus" and shipped is None:
+            continue
+        for w, a in WARPS:
+            m = models.build(system, args.factor, warp=w, warp_a=a)
+            params = shipped.params if system == "dlctus" else {}
+            c = _curve(m, params, frames, targets)
+            label = f"{system} {w} a={a}"
+            curves[label] = c["psnr"]
+            rows.append({"label": label, "finite": bool(np.all(np.isfinite(c["psnr"]))),
+                         "min": float(c["min"].min()), "max": float(c["max"].max()),
+                         **{f"psnr@{t}": float(np.mean(c["psnr"][t - 20:t])) for t in marks}})
+            print(rows[-1])
+    prec = []
+    if shipped is not None:
+        n = min(args.precision_frames, args.frames)
+        sub = jax.tree_util.tree_map(lambda x: x[:n], (frames, targets))
+        ref = None
+        for dt in ("float32", "bfloat16", "float16"):
+            m = models.build("dlctus", args.factor, dtype=dt)
+            first = jax.tree_util.tree_map(lambda x: x[0], sub[0])
+            outs = np.asarray(jax.jit(lambda p, s, f: rollout.outputs(m.step, p, s, f, check=False)[0])(
+                shipped.params, m.init_state(first), sub[0]))
+            if ref is None:
+                ref = outs
+            prec.append({"dtype": dt, "finite": bool(np.all(np.isfinite(outs))),
+                         "max_abs_vs_f32": float(np.abs(outs - ref).max()),
+                         "mean_abs_vs_f32": float(np.abs(outs - ref).mean())})
+            print(prec[-1])
+    table = ["| system, warp | finite | output range | " + " | ".join(
+        f"PSNR at frame {t}" for t in marks) + " |", "| --- | --- | --- |" + " --- |" * len(marks)]
+    for r in rows:
+        table.append(f"| {r['label']} | {r['finite']} | [{r['min']:.3f}, {r['max']:.3f}] | "
+                     + " | ".join(f"{r[f'psnr@{t}']:.2f}" for t in marks) + " |")
+    if prec:
+        table += ["", f"| DLCTUS dtype ({min(args.precision_frames, args.frames)} frames) | "
+                      "finite | max abs diff vs float32 | mean abs diff |",
+                  "| --- | --- | --- | --- |"]
+        table += [f"| {r['dtype']} | {r['finite']} | {r['max_abs_vs_f32']:.4f} | "
+                  f"{r['mean_abs_vs_f32']:.5f} |" for r in prec]
+    d = write("stability", "\n".join(table), {"warps": rows, "precision": prec},
+              f"{args.frames} frames of a zone plate moving (0.37, 0.11) LR px per frame at "
+              f"{args.size}x{args.size}, {args.factor}x; PSNR averaged over the 20 frames "
+              f"before each mark.")
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(9, 4))
+    for lab, c in curves.items():
+        ax.plot(np.convolve(c, np.ones(20) / 20, mode="valid"), label=lab, lw=1)
+    ax.set_xlabel("frame")
+    ax.set_ylabel("PSNR (dB), 20-frame mean")
+    ax.legend(fontsize=7, ncol=2)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(os.path.join(d, "stability.png"), dpi=100)
+
+
+if __name__ == "__main__":
+    main()
