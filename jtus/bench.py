@@ -110,13 +110,14 @@ def bench_infer(name, factor, size, repeats, dtype="float32", **overrides):
     return rec
 
 
-def bench_train(factor, crop, batch, seq, loss_frames, repeats, remat=False, unroll=1):
+def bench_train(factor, crop, batch, seq, loss_frames, repeats, remat=False, unroll=1,
+                conv_backward="custom"):
     import optax
 
     from jtus import losses, rollout, train
     from jtus.models import dlctus
 
-    model = dlctus.make(dlctus.Config(factor=factor))
+    model = dlctus.make(dlctus.Config(factor=factor, conv_backward=conv_backward))
     opt = optax.adam(1e-4)
     ts = [train.create_train_state(model.init(jax.random.PRNGKey(0)), opt)]
     step = train.make_train_step(model, losses.make("l1", factor), opt, loss_frames=loss_frames,
@@ -135,7 +136,8 @@ def bench_train(factor, crop, batch, seq, loss_frames, repeats, remat=False, unr
         stats["loss"].block_until_ready()
 
     return {"factor": factor, "crop": crop, "batch": batch, "seq": seq, "loss_frames": loss_frames,
-            "remat": remat, "s_per_step": timeit(run, repeats)}
+            "remat": remat, "unroll": bool(unroll is True), "conv_backward": conv_backward,
+            "s_per_step": timeit(run, repeats)}
 
 
 def _torch():
@@ -219,7 +221,9 @@ def run(args):
         report["infer"] = rows
     if "train" in args.what:
         rec = bench_train(args.factors[0], args.train_crop, args.train_batch, args.train_seq,
-                          args.train_loss_frames, args.repeats)
+                          args.train_loss_frames, args.repeats, remat=args.train_remat,
+                          unroll=True if args.train_unroll else 1,
+                          conv_backward=args.train_conv_backward)
         if args.torch:
             ts = torch_train(args.factors[0], args.train_crop, args.train_batch, args.train_seq,
                              args.train_loss_frames, args.repeats)
@@ -260,8 +264,10 @@ def markdown(report):
         lines.append("")
     if "train" in report:
         r = report["train"]
+        scan = "unrolled" if r["unroll"] else "rolled"
         lines += [f"Training step (DLCTUS {r['factor']}x, crop {r['crop']}, batch {r['batch']}, "
-                  f"sequence {r['seq']}, loss on the last {r['loss_frames']}, Adam): "
+                  f"sequence {r['seq']}, loss on the last {r['loss_frames']}, Adam; {scan} scan, "
+                  f"{r['conv_backward']} conv backward{', remat' if r['remat'] else ''}): "
                   f"jtus {r['s_per_step']:.3f} s, PyTorch {r.get('torch_s_per_step', float('nan')):.3f} s, "
                   f"torch/jtus {r.get('torch_over_jtus', float('nan')):.2f}."]
     return "\n".join(lines)
@@ -283,6 +289,9 @@ def main(argv=None):
     p.add_argument("--train-batch", type=int, default=4)
     p.add_argument("--train-seq", type=int, default=8)
     p.add_argument("--train-loss-frames", type=int, default=5)
+    p.add_argument("--train-unroll", action="store_true", help="unroll the scan fully")
+    p.add_argument("--train-remat", action="store_true")
+    p.add_argument("--train-conv-backward", choices=("custom", "autodiff"), default="custom")
     p.add_argument("--torch", action=argparse.BooleanOptionalAction, default=True,
                    help="also time the PyTorch reference")
     p.add_argument("--json", action="store_true")
