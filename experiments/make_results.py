@@ -19,7 +19,7 @@ import sys
 from common import RESULTS, ROOT  # noqa: E402
 
 SECTIONS = [
-    ("evaluation", "Evaluation: every system on the test videos", None),
+    ("evaluation", "Evaluation: every system on the test videos", "per_frame_x4.png"),
     ("pareto", "What accuracy costs in time (and the ablations of thesis Tables 13, 14, 16)",
      "pareto.png"),
     ("theta", "The θ sweep (thesis Table 10)", "theta.png"),
@@ -57,8 +57,10 @@ def main(argv=None):
              "(`--quick` for small settings). Sections not yet run say so.", ""]
     for name, title, img in SECTIONS:
         parts += [f"## {title}", ""]
-        md = os.path.join(RESULTS, name, "result.md")
-        if os.path.exists(md):
+        found = [os.path.join(RESULTS, name, f) for f in ("result.md", "results.md")
+                 if os.path.exists(os.path.join(RESULTS, name, f))]
+        md = found[0] if found else None
+        if md:
             with open(md) as fh:
                 parts.append(fh.read().strip())
             if img and os.path.exists(os.path.join(RESULTS, name, img)):
