@@ -210,9 +210,13 @@ def run(args):
         for name in args.models:
             for size in args.sizes:
                 for f in args.factors:
-                    for dt in (args.dtypes if name == "dlctus" else ["float32"]):
-                        rec = bench_infer(name, f, SIZES[size], args.repeats, dt)
-                        if name == "dlctus" and dt == "float32" and args.torch:
+                    variants = ([(dt, fm) for dt in args.dtypes for fm in args.formulations]
+                                if name == "dlctus" else [("float32", None)])
+                    for dt, fm in variants:
+                        over = {"formulation": fm} if fm else {}
+                        rec = bench_infer(name, f, SIZES[size], args.repeats, dt, **over)
+                        if (name == "dlctus" and dt == "float32" and fm == args.formulations[0]
+                                and args.torch):
                             ts = torch_infer(f, SIZES[size], args.repeats)
                             if ts is not None:
                                 rec.update(torch_ms=ts * 1e3, torch_over_jtus=ts * 1e3 / rec["ms"])
@@ -249,15 +253,17 @@ def markdown(report):
                   f"3x3 conv 32->32 at 270x480 {p['conv_dlctus_gflops']:.1f} GFLOP/s; "
                   f"3x3 conv 64->64 at 256x256 {p['conv_64_gflops']:.1f} GFLOP/s.", ""]
     if "infer" in report:
-        lines += ["| model | size | factor | dtype | ms/frame | GFLOP/frame | GFLOP/s | "
-                  "network ms | network GFLOP/s | % of conv peak | torch ms | torch/jtus |",
-                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+        lines += ["| model | size | factor | dtype | formulation | ms/frame | GFLOP/frame | "
+                  "GFLOP/s | network ms | network GFLOP/s | % of conv peak | torch ms | "
+                  "torch/jtus |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
         conv_peak = report.get("peak", {}).get("conv_dlctus_gflops")
         for r in report["infer"]:
             pct = (f"{100 * r['network_gflops'] / conv_peak:.0f}%"
                    if conv_peak and "network_gflops" in r else "")
             lines.append(
-                f"| {r['model']} | {r['size']} | {r['factor']}x | {r['dtype']} | {r['ms']:.1f} | "
+                f"| {r['model']} | {r['size']} | {r['factor']}x | {r['dtype']} | "
+                f"{r.get('formulation', '')} | {r['ms']:.1f} | "
                 f"{r['gflop']:.2f} | {r['gflops']:.1f} | {r.get('network_ms', float('nan')):.1f} | "
                 f"{r.get('network_gflops', float('nan')):.1f} | {pct} | "
                 f"{r.get('torch_ms', float('nan')):.1f} | {r.get('torch_over_jtus', float('nan')):.2f} |")
@@ -284,6 +290,8 @@ def main(argv=None):
     p.add_argument("--factors", nargs="+", type=int, default=[2, 4])
     p.add_argument("--dtypes", nargs="+", default=["float32"],
                    choices=("float32", "bfloat16", "float16"))
+    p.add_argument("--formulations", nargs="+", default=["opt2"],
+                   choices=("standard", "opt1", "opt2"), help="DLCTUS formulations to time")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--train-crop", type=int, default=128)
     p.add_argument("--train-batch", type=int, default=4)
