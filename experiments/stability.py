@@ -1,13 +1,14 @@
-"""The long stability runs: a zone plate moving at constant sub-pixel speed for 3600
+"""The long stability runs: a texture moving at constant sub-pixel speed for 3600
 frames through DLCTUS (shipped weights) and TUS with each reprojection warp, and
 DLCTUS's float16 / bfloat16 rollouts of 1000 frames against float32.
 
     python experiments/stability.py
     python experiments/stability.py --frames 600 --size 64        # a quicker look
 
-The video is analytic: LR samples of ``0.5 + 0.4 cos(k r^2)`` taken at the thesis
-jitter positions, the target a 16-sample box filter, the motion exact and constant, so
-what changes over time is the methods' accumulated error alone.
+The video is analytic (``moving_texture_video``): LR samples of three translating
+sinusoids taken at the thesis jitter positions, the target a 16-sample box filter, the
+motion exact and constant, so what changes over time is the methods' accumulated
+error alone.
 """
 
 from __future__ import annotations
@@ -27,13 +28,18 @@ WARPS = (("bilinear", -0.75), ("bicubic5", -0.75), ("bicubic9", -0.75), ("catmul
          ("bicubic", -0.75))
 
 
-def zoneplate_video(frames, size, factor, speed=(0.37, 0.11), k=18.0):
+def moving_texture_video(frames, size, factor, speed=(0.37, 0.11)):
+    """A sum of three sinusoids (wavelengths 9, 11 and 13 HR pixels) translating at
+    ``speed`` LR pixels per frame: LR samples at the thesis jitters, a 16-sample
+    box-filtered target, exact constant backward motion."""
     h = size // factor
     seq = sampling.jitter_sequence("thesis", factor)
 
-    def f(x, y, t):  # x, y in HR-normalized units [0, 1]
-        cx, cy = 0.5 + speed[0] * t / size * factor, 0.5 + speed[1] * t / size * factor
-        return 0.5 + 0.4 * np.cos(k * ((x - cx) ** 2 + (y - cy) ** 2) * 4)
+    def f(x, y, t):  # x, y in HR pixels
+        x = x - speed[0] * factor * t
+        y = y - speed[1] * factor * t
+        return (0.5 + 0.15 * np.cos(2 * np.pi * x / 9) + 0.15 * np.cos(2 * np.pi * y / 11)
+                + 0.1 * np.cos(2 * np.pi * (x + y) / 13))
 
     jj, ii = np.meshgrid(np.arange(h), np.arange(h))
     off = (np.stack(np.meshgrid(np.arange(4), np.arange(4)), -1).reshape(-1, 2) + 0.5) / 4
@@ -41,9 +47,9 @@ def zoneplate_video(frames, size, factor, speed=(0.37, 0.11), k=18.0):
     color, target, jit = [], [], []
     for t in range(frames):
         j = seq[t % len(seq)]
-        v = f((jj + j[0]) / h, (ii + j[1]) / h, t)
+        v = f((jj + j[0]) * factor, (ii + j[1]) * factor, t)
         color.append(np.repeat(v[..., None], 3, -1))
-        acc = sum(f((XX + o[0]) / size, (YY + o[1]) / size, t) for o in off) / len(off)
+        acc = sum(f(XX + o[0], YY + o[1], t) for o in off) / len(off)
         target.append(np.repeat(acc[..., None], 3, -1))
         jit.append(j)
     T = frames
@@ -52,7 +58,8 @@ def zoneplate_video(frames, size, factor, speed=(0.37, 0.11), k=18.0):
     reset[0] = True
     fr = Frame(np.asarray(color, np.float32)[:, None], np.full((T, 1, h, h, 1), 0.9, np.float32),
                np.ascontiguousarray(motion), np.asarray(jit, np.float32)[:, None], reset)
-    return jax.tree_util.tree_map(jnp.asarray, fr), jnp.asarray(np.asarray(target, np.float32)[:, None])
+    return (jax.tree_util.tree_map(jnp.asarray, fr),
+            jnp.asarray(np.asarray(target, np.float32)[:, None]))
 
 
 def _curve(model, params, frames, targets):
@@ -72,7 +79,7 @@ def main(argv=None):
     p.add_argument("--size", type=int, default=96)
     p.add_argument("--factor", type=int, default=4)
     args = p.parse_args(argv)
-    frames, targets = zoneplate_video(args.frames, args.size, args.factor)
+    frames, targets = moving_texture_video(args.frames, args.size, args.factor)
     shipped = evaluate.resolve("shipped", args.factor)
     rows, curves = [], {}
     marks = [m for m in (100, 1000, args.frames) if m <= args.frames]
@@ -117,7 +124,7 @@ def main(argv=None):
         table += [f"| {r['dtype']} | {r['finite']} | {r['max_abs_vs_f32']:.4f} | "
                   f"{r['mean_abs_vs_f32']:.5f} |" for r in prec]
     d = write("stability", "\n".join(table), {"warps": rows, "precision": prec},
-              f"{args.frames} frames of a zone plate moving (0.37, 0.11) LR px per frame at "
+              f"{args.frames} frames of a texture moving (0.37, 0.11) LR px per frame at "
               f"{args.size}x{args.size}, {args.factor}x; PSNR averaged over the 20 frames "
               f"before each mark.")
     import matplotlib
