@@ -44,32 +44,16 @@ def write(name, table, data, note=""):
     return d
 
 
-def st_metrics(factor):
-    """Per frame: PSNR, SSIM and L_st-linear at θ=0 (spatial) and θ=1 (temporal)."""
-    from jtus import losses, metrics
-
-    def fn(out, target, prev_out, prev_target, has_prev, frame):
-        x, y = losses.errors(out, target, prev_out, prev_target, has_prev, frame, factor)
-        mean = lambda v: jnp.mean(v, axis=(1, 2, 3))  # noqa: E731
-        return {"psnr": metrics.psnr(out, target), "ssim": metrics.ssim(out, target),
-                "st0": mean(losses.st_linear_terms(x, y, 0.0)),
-                "st1": jnp.where(has_prev, mean(losses.st_linear_terms(x, y, 1.0)), jnp.nan)}
-    return fn
-
-
 def evaluate_videos(model, params, dataset_path, factor, split="test", max_videos=None):
-    """Means over whole videos of ``st_metrics``."""
-    from jtus import rollout
+    """Means over whole videos of ``jtus.train.video_metrics`` (PSNR, SSIM, spatial and
+    temporal error)."""
     from jtus.data.dataset import Dataset
+    from jtus.train import video_metrics
 
-    fn = st_metrics(factor)
-    run = jax.jit(lambda p, s, f, t: rollout.metrics(model.step, p, s, f, t, fn, check=False)[0])
     acc = {}
     with Dataset(dataset_path) as ds:
         for name in ds.videos(split)[:max_videos]:
             frames, targets = jax.tree_util.tree_map(jnp.asarray, ds.video(split, name, factor))
-            first = jax.tree_util.tree_map(lambda x: x[0], frames)
-            ms = run(params, model.init_state(first), frames, targets)
-            for k, v in ms.items():
-                acc.setdefault(k, []).append(np.asarray(v)[:, 0])
+            for k, v in video_metrics(model, params, frames, targets, factor).items():
+                acc.setdefault(k, []).append(v)
     return {k: float(np.nanmean(np.concatenate(v))) for k, v in acc.items()}

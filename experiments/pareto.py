@@ -101,7 +101,7 @@ def main(argv=None):
              "| --- |" + " --- |" * (len(args.sizes) + 5)]
     for r in rows:
         times = " | ".join(f"{r[f'ms_{s}']:.1f}" if f"ms_{s}" in r else "" for s in args.sizes)
-        q = (f"{r['psnr']:.2f} | {r['ssim']:.4f} | {r['st1']:.5f}" if "psnr" in r
+        q = (f"{r['psnr']:.2f} | {r['ssim']:.4f} | {r['temporal']:.5f}" if "psnr" in r
              else "not trained | | ")
         table.append(f"| {r['label']} | {times} | {r.get(f'gflop_{big}', float('nan')):.2f} | "
                      f"{r.get(f'mbytes_{big}', float('nan')):.1f} | {q} |")

@@ -43,7 +43,7 @@ def main(argv=None):
     table = ["| loss | L_st-linear θ=0 (spatial) | L_st-linear θ=1 (temporal) | PSNR (dB) | SSIM |",
              "| --- | --- | --- | --- | --- |"]
     for label, r in rows.items():
-        table.append(f"| {label} | {r['st0']:.5f} | {r['st1']:.5f} | {r['psnr']:.2f} | "
+        table.append(f"| {label} | {r['spatial']:.5f} | {r['temporal']:.5f} | {r['psnr']:.2f} | "
                      f"{r['ssim']:.4f} |")
     d = write("theta", "\n".join(table), rows,
               f"DLCTUS {args.factor}x, {args.epochs} epochs x {args.steps_per_epoch} steps per "
@@ -53,7 +53,7 @@ def main(argv=None):
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(figsize=(5, 4))
     for label, r in rows.items():
-        ax.scatter(r["st0"], r["st1"], label=label)
+        ax.scatter(r["spatial"], r["temporal"], label=label)
     ax.set_xlabel("spatial error (L_st-linear, θ=0)")
     ax.set_ylabel("temporal error (L_st-linear, θ=1)")
     ax.legend(fontsize=8)

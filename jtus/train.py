@@ -214,14 +214,17 @@ def _start_carry(model, frames, targets):
 def _frame_metrics(factor):
     def fn(out, target, prev_out, prev_target, has_prev, frame):
         x, y = losses.errors(out, target, prev_out, prev_target, has_prev, frame, factor)
-        temporal = jnp.mean(jnp.abs(x - y), axis=(1, 2, 3))
+        mean = lambda v: jnp.mean(v, axis=(1, 2, 3))  # noqa: E731
         return {"psnr": metrics.psnr(out, target), "ssim": metrics.ssim(out, target),
-                "temporal": jnp.where(has_prev, temporal, jnp.nan)}
+                "spatial": mean(losses.st_linear_terms(x, y, 0.0)),
+                "temporal": jnp.where(has_prev, mean(losses.st_linear_terms(x, y, 1.0)),
+                                      jnp.nan)}
     return fn
 
 
 def video_metrics(model, params, frames, targets, factor):
-    """Per-frame PSNR, SSIM and temporal error (L_st-linear at θ=1) over one video."""
+    """Per-frame PSNR, SSIM, spatial error (L_st-linear at θ=0) and temporal error
+    (L_st-linear at θ=1, NaN on the first frame) over one video."""
     fn = jax.jit(lambda p, s, f, t: rollout.metrics(model.step, p, s, f, t,
                                                     _frame_metrics(factor))[0])
     first = jax.tree_util.tree_map(lambda x: x[0], frames)

@@ -26,25 +26,13 @@ def _load_input(args):
     from jtus.frame import Frame
 
     if os.path.isdir(args.input):
-        from jtus.data import conventions, exr
+        from jtus.data import exr
 
         spec = exr.ImportSpec.from_json(args.exr_spec) if args.exr_spec else exr.ImportSpec()
-        files = exr._frames(args.input)
-        cols = {"color": [], "depth": [], "motion": []}
-        for path in files:
-            ch, _ = exr.read_exr(path)
-            color = exr._pick(ch, spec.color, path, "color")
-            h, w = color.shape[:2]
-            depth = conventions.depth_to_device(exr._pick(ch, (spec.depth,), path, "depth"),
-                                                spec.depth_kind, spec.near, spec.far)
-            mv = conventions.motion_to_jtus(exr._pick(ch, spec.motion, path, "motion"), w, h,
-                                            spec.motion_units, spec.motion_y_up, spec.motion_negate)
-            for k, v in (("color", color), ("depth", depth), ("motion", mv)):
-                cols[k].append(v.astype(np.float32))
-        jit = exr._jitters(spec, len(files), args.factor).astype(np.float32)
-        reset = np.arange(len(files)) == 0
-        return Frame(np.stack(cols["color"])[:, None], np.stack(cols["depth"])[:, None],
-                     np.stack(cols["motion"])[:, None], jit[:, None], reset[:, None])
+        video = exr.load_sequence(args.input, None, args.factor, spec)
+        x = video[f"x{args.factor}"]
+        return Frame(x["color"][:, None], x["depth"][:, None], x["motion"][:, None],
+                     x["jitter"][:, None], video["reset"][:, None])
     from jtus.data.dataset import Dataset
 
     with Dataset(args.input) as ds:

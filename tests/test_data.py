@@ -6,7 +6,7 @@ import h5py
 import numpy as np
 import pytest
 
-from jtus import sim
+from jtus import sim, upsample
 from jtus.data import __main__ as data_cli
 from jtus.data import conventions, dataset, exr
 from jtus.sim import __main__ as sim_cli
@@ -145,6 +145,12 @@ def test_exr_import_converts_conventions(tmp_path):
     np.testing.assert_array_equal(frames.color[:, 0], x["color"].astype(np.float16))
     np.testing.assert_array_equal(targets[:, 0], video["target"].astype(np.float16))
     np.testing.assert_array_equal(frames.jitter[:, 0], x["jitter"])  # thesis 4x4 pattern
+    # The same folder, without targets, through the upsampler.
+    out_dir = tmp_path / "up"
+    assert upsample.main(["--input", str(lr), "--exr-spec", str(sidecar), "--factor", "4",
+                          "--model", "tus", "--out", str(out_dir), "--format", "exr"]) == 0
+    chans, _ = exr.read_exr(out_dir / "frame0003.exr")
+    assert chans["R"].shape == (32, 32)
 
 
 def test_exr_import_errors(tmp_path, capsys):

@@ -122,8 +122,10 @@ def _jitters(spec, n, factor):
 
 
 def load_sequence(input_dir, target_dir, factor, spec: ImportSpec = ImportSpec()):
-    """Read an EXR sequence into the ``jtus.sim.video`` dict layout (one factor)."""
-    inputs, targets = _frames(input_dir), _frames(target_dir)
+    """Read an EXR sequence into the ``jtus.sim.video`` dict layout (one factor).
+    ``target_dir`` None reads the inputs alone (``target`` is then absent)."""
+    inputs = _frames(input_dir)
+    targets = _frames(target_dir) if target_dir is not None else [None] * len(inputs)
     if len(inputs) != len(targets):
         raise ValueError(f"{input_dir} has {len(inputs)} frames but {target_dir} has "
                          f"{len(targets)}")
@@ -143,19 +145,23 @@ def load_sequence(input_dir, target_dir, factor, spec: ImportSpec = ImportSpec()
         motion = conventions.motion_to_jtus(_pick(ch, spec.motion, fin, "motion"), w, h,
                                             spec.motion_units, spec.motion_y_up,
                                             spec.motion_negate)
-        tch, _ = read_exr(ftg)
-        target = _pick(tch, spec.target_color, ftg, "target")
-        if target.shape[:2] != (h * factor, w * factor):
-            raise ValueError(f"{ftg}: target size {target.shape[0]}x{target.shape[1]} is not "
-                             f"factor {factor} x the input's {h}x{w}")
-        for k, v in (("color", color), ("depth", depth), ("motion", motion), ("target", target)):
+        for k, v in (("color", color), ("depth", depth), ("motion", motion)):
             cols[k].append(v.astype(np.float32))
+        if ftg is not None:
+            tch, _ = read_exr(ftg)
+            target = _pick(tch, spec.target_color, ftg, "target")
+            if target.shape[:2] != (h * factor, w * factor):
+                raise ValueError(f"{ftg}: target size {target.shape[0]}x{target.shape[1]} is "
+                                 f"not factor {factor} x the input's {h}x{w}")
+            cols["target"].append(target.astype(np.float32))
     n = len(inputs)
-    return {"target": np.stack(cols["target"]),
-            "reset": np.arange(n) == 0,
-            f"x{factor}": {"color": np.stack(cols["color"]), "depth": np.stack(cols["depth"]),
-                           "motion": np.stack(cols["motion"]),
-                           "jitter": _jitters(spec, n, factor).astype(np.float32)}}
+    out = {"reset": np.arange(n) == 0,
+           f"x{factor}": {"color": np.stack(cols["color"]), "depth": np.stack(cols["depth"]),
+                          "motion": np.stack(cols["motion"]),
+                          "jitter": _jitters(spec, n, factor).astype(np.float32)}}
+    if cols["target"]:
+        out["target"] = np.stack(cols["target"])
+    return out
 
 
 def import_exr(input_dir, target_dir, factor, out, spec: ImportSpec = ImportSpec(),

@@ -81,14 +81,6 @@ def _switched_conv(x, p, phase):
     return jax.vmap(one)(x, p["kernel"][phase], p["bias"][phase])
 
 
-def _neighbourhood(img):
-    """``[B,H,W,C]`` -> ``[B,H,W,C,K*K]``: the zero-padded KxK neighbourhood, raster order."""
-    r = K // 2
-    h, w = img.shape[1:3]
-    p = jnp.pad(img, ((0, 0), (r, r), (r, r), (0, 0)))
-    return jnp.stack([p[:, dy:dy + h, dx:dx + w] for dy in range(K) for dx in range(K)], -1)
-
-
 def prepare(state: State, frame: Frame, config: Config):
     f = config.factor
     b, h, w, _ = frame.color.shape
@@ -122,8 +114,11 @@ def step(params, state: State, frame: Frame, config: Config = Config()):
     x, jau, rep = prepare(state, frame, config)
     wts, hidden = kernels(params, x, phase_index(frame.jitter, config))
     n = K * K
-    out = (jnp.einsum("bhwcn,bhwn->bhwc", _neighbourhood(jau), wts[..., :n])
-           + jnp.einsum("bhwcn,bhwn->bhwc", _neighbourhood(rep[..., :3]), wts[..., n:]))
+    def near(img):  # zero-padded KxK neighbourhoods, raster order
+        return sampling.neighbourhood(img, K, mode="constant")
+
+    out = (jnp.einsum("bhwcn,bhwn->bhwc", near(jau), wts[..., :n])
+           + jnp.einsum("bhwcn,bhwn->bhwc", near(rep[..., :3]), wts[..., n:]))
     return out, State(jnp.concatenate([out, hidden], -1))
 
 
@@ -144,9 +139,7 @@ def alias_mask(jau, target, sensitivity=4.0):
     """Herveau et al.'s per-pixel aliasing mask: the summed channel differences between
     the (jitter-aligned) input and the reference, scaled, clipped to [0, 1], 3x3-dilated."""
     m = jnp.clip(sensitivity * jnp.abs(jau - target).sum(-1, keepdims=True), 0.0, 1.0)
-    p = jnp.pad(m, ((0, 0), (1, 1), (1, 1), (0, 0)), mode="edge")
-    h, w = m.shape[1:3]
-    return jnp.max(jnp.stack([p[:, dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3)]), 0)
+    return sampling.neighbourhood(m, 3).max(-1)
 
 
 def make_loss(factor, weights=(1.0, 1.0, 10.0), alias_boost=1.5, sensitivity=4.0):

@@ -43,14 +43,6 @@ def init(key, config: Config = Config()):
     return {"layers": layers.mlp_init(key, sizes)}
 
 
-def _patches(x):
-    """``[B,h,w,C]`` -> ``[B,h,w,C,25]``, edge-replicated 5x5 neighbourhoods."""
-    r = P // 2
-    h, w = x.shape[1:3]
-    p = jnp.pad(x, ((0, 0), (r, r), (r, r), (0, 0)), mode="edge")
-    return jnp.stack([p[:, dy:dy + h, dx:dx + w] for dy in range(P) for dx in range(P)], -1)
-
-
 def _boost(r, gamma):
     return r if gamma == 1.0 else jnp.sign(r) * jnp.abs(r) ** (1.0 / gamma)
 
@@ -58,8 +50,8 @@ def _boost(r, gamma):
 def step(params, state, frame: Frame, config: Config = Config()):
     color = frame.color.astype(jnp.float32)
     depth = linearize_depth(frame.depth.astype(jnp.float32), config.near, config.far)
-    cp = _patches(color)                                 # [B,h,w,3,25]
-    dp = _patches(depth)                                 # [B,h,w,1,25]
+    cp = sampling.neighbourhood(color, P)                # [B,h,w,3,25], edges replicated
+    dp = sampling.neighbourhood(depth, P)                # [B,h,w,1,25]
     cmean = cp.mean(-1, keepdims=True)
     x = jnp.concatenate([_boost(cp - cmean, config.gamma),
                          jnp.broadcast_to(_boost(dp - dp.mean(-1, keepdims=True), config.gamma),

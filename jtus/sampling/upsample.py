@@ -105,7 +105,17 @@ def jitter_aligned_upsample(x, jitter, factor, method="bilinear", a=-0.75):
     return sample(x, xy, method=method, a=a)
 
 
-_NEIGHBOURS = [(0, 0)] + [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0)]
+def neighbourhood(x, size, mode="edge"):
+    """``[B,H,W,C] -> [B,H,W,C,size*size]``: each pixel's ``size`` x ``size``
+    neighbourhood in raster order (row by row), padded with ``mode`` (``"edge"``
+    replicates, ``"constant"`` pads zeros)."""
+    r = size // 2
+    h, w = x.shape[1:3]
+    p = jnp.pad(x, ((0, 0), (r, r), (r, r), (0, 0)), mode=mode)
+    return jnp.stack([p[:, dy:dy + h, dx:dx + w] for dy in range(size) for dx in range(size)], -1)
+
+
+_CENTRE_FIRST = (4, 0, 1, 2, 3, 5, 6, 7, 8)  # 3x3 raster indices, the centre first
 
 
 def dilate_motion(motion, depth):
@@ -116,10 +126,8 @@ def dilate_motion(motion, depth):
     """
     if depth.shape != motion.shape[:3] + (1,):
         raise ValueError(f"depth: expected {motion.shape[:3] + (1,)}, got {depth.shape}")
-    h, w = motion.shape[1:3]
-    mp = jnp.pad(motion, ((0, 0), (1, 1), (1, 1), (0, 0)), mode="edge")
-    dp = jnp.pad(depth, ((0, 0), (1, 1), (1, 1), (0, 0)), mode="edge")
-    mvs = jnp.stack([mp[:, 1 + dy:1 + dy + h, 1 + dx:1 + dx + w] for dy, dx in _NEIGHBOURS], 0)
-    ds = jnp.stack([dp[:, 1 + dy:1 + dy + h, 1 + dx:1 + dx + w] for dy, dx in _NEIGHBOURS], 0)
-    best = jnp.argmin(ds, axis=0)  # first minimum wins
-    return jnp.take_along_axis(mvs, best[None], axis=0)[0]
+    order = jnp.asarray(_CENTRE_FIRST)
+    mvs = neighbourhood(motion, 3)[..., order]   # [B,h,w,2,9]
+    ds = neighbourhood(depth, 3)[..., order]     # [B,h,w,1,9]
+    best = jnp.argmin(ds, axis=-1)               # the first minimum wins
+    return jnp.take_along_axis(mvs, best[..., None], axis=-1)[..., 0]
