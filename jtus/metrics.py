@@ -13,8 +13,6 @@ the 5-pixel border before averaging, so the two means cover the same pixels and 
 
 from __future__ import annotations
 
-import math
-
 import jax.numpy as jnp
 import numpy as np
 
@@ -67,8 +65,4 @@ def psnr(a, b):
     return -10.0 * jnp.log10(mse(a, b))
 
 
-def psnr_from_mse(m):
-    return -10.0 * math.log10(m) if m > 0 else float("inf")
-
-
-__all__ = ["C1", "C2", "mse", "psnr", "psnr_from_mse", "ssim", "ssim_map"]
+__all__ = ["C1", "C2", "mse", "psnr", "ssim", "ssim_map"]
