@@ -3,11 +3,13 @@
     python -m jtus.evaluate --models jau tus shipped
     python -m jtus.evaluate --factor 4 --models jau tus trained=runs/default-x4/checkpoint.msgpack
     python -m jtus.evaluate --models tus thesis=thesis_dlctus_x4.pt --json
+    python -m jtus.evaluate --models jau tus shipped 'nsrr=runs/nsrr-x{f}/checkpoint.msgpack'
 
 Model specs: a built-in name (``jau``, ``jau-bicubic``, ``tus``, ``tus-clip``),
 ``shipped`` (the weights under ``jtus/weights/`` for the factor), or ``LABEL=PATH``
 for a checkpoint written by ``jtus.train`` (``.msgpack``) or a PyTorch DLCTUS
-checkpoint (``.pt``). Every video starts from a fresh state.
+checkpoint (``.pt``); ``{f}`` in PATH becomes the factor being evaluated, so one spec
+covers a model trained per factor. Every video starts from a fresh state.
 
 Writes into ``--out``: ``results.md`` (per factor: PSNR / SSIM / temporal error per
 method, thesis Table 2 layout), ``results.json``, ``per_frame_x{f}.png`` (PSNR and SSIM
@@ -55,6 +57,7 @@ def resolve(spec, factor) -> Entry | None:
         spec = f"dlctus-shipped={path}"
     if "=" in spec:
         label, path = spec.split("=", 1)
+        path = path.replace("{f}", str(factor))
         if not os.path.exists(path):
             raise FileNotFoundError(f"{label}: {path} does not exist")
         if path.endswith(".pt"):

@@ -16,6 +16,9 @@ start of a video, ``has_prev`` False) or the reprojection leaves the image, ``y 
   θ=0 is the L1 of the current and the previous error, θ=1 the temporal term
   ``|x - y|``;
 - ``ssim``: ``1 - SSIM``.
+
+Any of them takes NSRR's VGG-16 perceptual term on top when a weights file is given
+(``make(..., perceptual_weights=FILE)``, ``jtus.perceptual``); nothing is downloaded.
 """
 
 from __future__ import annotations
@@ -72,12 +75,35 @@ def _temporal(kind, theta, factor, method, out, target, prev_out, prev_target, h
     return jnp.mean(st_linear_terms(x, y, theta))
 
 
-def make(name, factor, theta=0.5, method="bilinear"):
-    """The loss ``name`` (one of ``NAMES``) for up-sampling factor ``factor``."""
+def with_perceptual(base, vgg_params, weight=0.1):
+    """``base + weight * perceptual`` (NSRR's eq. 1 with ``base`` = 1 - SSIM), the
+    perceptual term of ``jtus.perceptual`` on VGG-16 weights ``vgg_params``."""
+    from jtus import perceptual
+
+    if not weight >= 0.0:
+        raise ValueError(f"perceptual_weight: expected a value >= 0, got {weight}")
+
+    def loss(out, target, *rest):
+        return base(out, target, *rest) + weight * perceptual.loss(vgg_params, out, target)
+
+    return loss
+
+
+def make(name, factor, theta=0.5, method="bilinear", perceptual_weights=None,
+         perceptual_weight=0.1):
+    """The loss ``name`` (one of ``NAMES``) for up-sampling factor ``factor``; with
+    ``perceptual_weights`` (an ``.npz`` of VGG-16, see ``jtus.perceptual``) the
+    perceptual term is added with weight ``perceptual_weight``."""
     if name in ("l1", "mse", "ssim"):
-        return {"l1": _l1, "mse": _mse, "ssim": _ssim}[name]
-    if name in ("salvi", "st", "st-linear"):
+        base = {"l1": _l1, "mse": _mse, "ssim": _ssim}[name]
+    elif name in ("salvi", "st", "st-linear"):
         if not 0.0 <= theta <= 1.0:
             raise ValueError(f"theta: expected a value in [0, 1], got {theta}")
-        return functools.partial(_temporal, name, theta, factor, method)
-    raise ValueError(f"loss: expected one of {NAMES}, got {name!r}")
+        base = functools.partial(_temporal, name, theta, factor, method)
+    else:
+        raise ValueError(f"loss: expected one of {NAMES}, got {name!r}")
+    if perceptual_weights:
+        from jtus import perceptual
+        return with_perceptual(base, perceptual.load_vgg16(perceptual_weights),
+                               perceptual_weight)
+    return base

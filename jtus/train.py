@@ -131,6 +131,8 @@ class Config:
     dataset: str = "data/default.h5"
     data_preset: str = "default"  # generated into ``dataset`` when the file is missing
     seed: int = 0
+    perceptual_weights: str = ""  # .npz of VGG-16 (jtus.perceptual): adds NSRR's term
+    perceptual_weight: float = 0.1
     model_overrides: tuple = ()   # (("warp", "bilinear"), ...) for the model's config
 
     def __post_init__(self):
@@ -172,8 +174,15 @@ def _model(config: Config):
 def _loss(config: Config):
     if config.loss == "kpn":  # Herveau et al.'s alias-masked reference/gradient/temporal loss
         from jtus.models import kpn
-        return kpn.make_loss(config.factor)
-    return losses.make(config.loss, config.factor, theta=config.theta)
+        loss = kpn.make_loss(config.factor)
+        if config.perceptual_weights:
+            from jtus import perceptual
+            loss = losses.with_perceptual(loss, perceptual.load_vgg16(
+                config.perceptual_weights), config.perceptual_weight)
+        return loss
+    return losses.make(config.loss, config.factor, theta=config.theta,
+                       perceptual_weights=config.perceptual_weights or None,
+                       perceptual_weight=config.perceptual_weight)
 
 
 def _accept(config: Config):

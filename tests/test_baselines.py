@@ -32,6 +32,31 @@ def test_tus_with_unit_alpha_and_beta_is_jau(factor):
     np.testing.assert_allclose(outs, ref, rtol=0, atol=1e-6)
 
 
+def _neighbours(lr, xy):
+    """Reference: the 3x3 LR samples around each HR pixel's nearest sample, each a
+    clamped nearest gather at HR: ``[9,B,H,W,C]``."""
+    return jnp.stack([sampling.sample(lr, xy + jnp.asarray([dx, dy], jnp.float32), "nearest")
+                      for dy, dx in tus._OFFSETS])
+
+
+@pytest.mark.parametrize("space", ["rgb", "ycocg"])
+@pytest.mark.parametrize("factor", [2, 4])
+def test_box_statistics_equal_nine_hr_gathers(factor, space):
+    """The LR-computed box equals the 9 clamped HR gathers, with jitters at the
+    extremes that put nearest samples outside the image."""
+    rng = np.random.default_rng(factor)
+    color = jnp.asarray(rng.uniform(size=(4, 5, 7, 3)), jnp.float32)
+    jit = jnp.asarray([[-0.5, -0.5], [0.5, 0.5], [0.49, -0.5], [0.13, 0.31]], jnp.float32)
+    frame = Frame(color, jnp.zeros((4, 5, 7, 1)), jnp.zeros((4, 5, 7, 2)), jit)
+    xy = tus._jau_coords(frame, factor)
+    to = sampling.rgb_to_ycocg if space == "ycocg" else (lambda x: x)
+    lo, hi, mean = tus._box(to(color), xy, True)
+    neigh = np.asarray(_neighbours(to(color), xy))
+    np.testing.assert_array_equal(lo, neigh.min(0))
+    np.testing.assert_array_equal(hi, neigh.max(0))
+    np.testing.assert_allclose(mean, neigh.mean(0), rtol=0, atol=1e-6)
+
+
 @pytest.mark.parametrize("rectify,space", [("clamp", "rgb"), ("clamp", "ycocg"), ("clip", "rgb"),
                                            ("clip", "ycocg")])
 def test_rectified_history_lies_in_the_neighbourhood_box(rectify, space):
@@ -42,7 +67,7 @@ def test_rectified_history_lies_in_the_neighbourhood_box(rectify, space):
     hist = jnp.asarray(rng.uniform(-0.5, 1.5, size=(2, 32, 32, 3)), jnp.float32)
     xy = tus._jau_coords(frame, 4)
     out = np.asarray(tus._rectify(config, hist, frame.color, xy))
-    neigh = np.asarray(tus._neighbours(frame.color, xy))
+    neigh = np.asarray(_neighbours(frame.color, xy))
     if space == "ycocg":
         out, neigh = np.asarray(sampling.rgb_to_ycocg(out)), np.asarray(sampling.rgb_to_ycocg(neigh))
     assert np.all(out >= neigh.min(0) - 1e-5) and np.all(out <= neigh.max(0) + 1e-5)

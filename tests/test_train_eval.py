@@ -67,14 +67,16 @@ def test_train_loss_decreases(tiny_data, tmp_path):
 
 
 def test_cli_train_evaluate_upsample(tiny_data, tmp_path, capsys):
-    work = tmp_path / "run"
+    work = tmp_path / "run-x4"
     assert train.main(["--preset", "tiny", "--dataset", tiny_data, "--workdir", str(work),
                        "--epochs", "1", "--quiet", "--no-eval"]) == 0
     ckpt = work / "checkpoint.msgpack"
     assert ckpt.exists()
     out = tmp_path / "eval"
+    # "{f}" in a path stands for the factor being evaluated
     assert evaluate.main(["--dataset", tiny_data, "--factor", "4", "--models", "jau", "tus",
-                          f"mine={ckpt}", "--out", str(out), "--json", "--quiet"]) == 0
+                          f"mine={tmp_path / 'run-x{f}' / 'checkpoint.msgpack'}", "--out",
+                          str(out), "--json", "--quiet"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert set(summary["4"]) == {"jau", "tus", "mine"}
     for name in ("results.md", "results.json", "per_frame_x4.png", "crops_x4.png"):

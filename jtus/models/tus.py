@@ -86,12 +86,6 @@ def _jau_coords(frame, f):
     return xy - frame.jitter.astype(jnp.float32)[:, None, None, :] + 0.5
 
 
-def _neighbours(lr, xy):
-    """The 3x3 LR samples around each HR pixel's nearest sample: ``[9,B,H,W,C]``."""
-    return jnp.stack([sampling.sample(lr, xy + jnp.asarray([dx, dy], jnp.float32), "nearest")
-                      for dy, dx in _OFFSETS])
-
-
 def _scaled_input(config, frame, color, xy):
     """(s [B,H,W,3], β_max [B,H,W,1]) per eq. 38 and 42."""
     f = config.factor
@@ -124,18 +118,32 @@ def _beta(config, frame, beta_max):
     return sampling.zero_upsample(ones, frame.jitter.astype(jnp.float32), config.factor)
 
 
+def _box(color, xy, with_mean):
+    """Per HR pixel, the min and max (and mean) of the 3x3 LR samples around its
+    nearest sample, each tap clamped to the image: ``[B,H,W,C]`` each.
+
+    Taken once at LR and gathered once: the image is edge-padded by one pixel first,
+    so that a nearest sample just outside the image (a jitter can put it there) keeps
+    the statistics of its own clamped taps, which makes this equal, value for value,
+    to gathering the 9 clamped nearest samples at HR (the test's reference)."""
+    p = jnp.pad(color, ((0, 0), (1, 1), (1, 1), (0, 0)), mode="edge")
+    n = sampling.neighbourhood(p, 3)  # [B,h+2,w+2,C,9]
+    stats = [n.min(-1), n.max(-1)] + ([n.mean(-1)] if with_mean else [])
+    c = color.shape[-1]
+    got = sampling.sample(jnp.concatenate(stats, -1), xy + 1.0, "nearest")
+    return [got[..., i * c:(i + 1) * c] for i in range(len(stats))]
+
+
 def _rectify(config, hist, color, xy):
     if config.rectify == "none":
         return hist
-    neigh = _neighbours(color, xy)
     to = sampling.rgb_to_ycocg if config.color_space == "ycocg" else (lambda x: x)
     back = sampling.ycocg_to_rgb if config.color_space == "ycocg" else (lambda x: x)
-    neigh = to(neigh)
     h = to(hist)
-    lo, hi = neigh.min(0), neigh.max(0)
     if config.rectify == "clamp":
+        lo, hi = _box(to(color), xy, False)
         return back(jnp.clip(h, lo, hi))
-    mean = neigh.mean(0)  # inside the box: clip the segment mean -> h onto the box
+    lo, hi, mean = _box(to(color), xy, True)  # clip the segment mean -> h onto the box
     v = h - mean
     safe = jnp.where(jnp.abs(v) < 1e-12, 1e-12, v)
     t = jnp.where(v > 0, (hi - mean) / safe, jnp.where(v < 0, (lo - mean) / safe, jnp.inf))
