@@ -34,9 +34,28 @@ def _check(image, xy):
             f"xy: expected [B,Ho,Wo,2] with B={image.shape[0]}, got shape {xy.shape}")
 
 
+def _flat_gather(image, iy, ix):
+    b, h, w, c = image.shape
+    idx = (jnp.arange(b).reshape((b,) + (1,) * (iy.ndim - 1)) * h + iy) * w + ix
+    return image.reshape(b * h * w, c)[idx]
+
+
+@jax.custom_jvp
 def _gather(image, iy, ix):
-    """image [B,H,W,C]; integer iy, ix [B,...] (already clamped) -> [B,...,C]."""
+    """image [B,H,W,C]; integer iy, ix [B,...] (already clamped) -> [B,...,C].
+
+    The value is a batched gather; its tangent is the same gather written on the
+    flattened image, whose transpose (the image gradient, a scatter-add) XLA:CPU runs
+    about 4x faster than the transpose of the batched form (docs/performance.md).
+    Both read the same elements, so values and derivatives are unchanged.
+    """
     return jax.vmap(lambda im, y, x: im[y, x])(image, iy, ix)
+
+
+@_gather.defjvp
+def _gather_jvp(primals, tangents):
+    image, iy, ix = primals
+    return _gather(image, iy, ix), _flat_gather(tangents[0], iy, ix)
 
 
 def keys_weights(t, a):
