@@ -26,6 +26,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jtus import sampling
+
 SIZES = {"720p": (720, 1280), "1080p": (1080, 1920), "256": (256, 256), "64": (64, 64)}
 
 
@@ -111,13 +113,13 @@ def bench_infer(name, factor, size, repeats, dtype="float32", **overrides):
 
 
 def bench_train(factor, crop, batch, seq, loss_frames, repeats, remat=False, unroll=1,
-                conv_backward="custom"):
+                conv_backward="custom", warp="bicubic"):
     import optax
 
     from jtus import losses, rollout, train
     from jtus.models import dlctus
 
-    model = dlctus.make(dlctus.Config(factor=factor, conv_backward=conv_backward))
+    model = dlctus.make(dlctus.Config(factor=factor, conv_backward=conv_backward, warp=warp))
     opt = optax.adam(1e-4)
     ts = [train.create_train_state(model.init(jax.random.PRNGKey(0)), opt)]
     step = train.make_train_step(model, losses.make("l1", factor), opt, loss_frames=loss_frames,
@@ -137,7 +139,7 @@ def bench_train(factor, crop, batch, seq, loss_frames, repeats, remat=False, unr
 
     return {"factor": factor, "crop": crop, "batch": batch, "seq": seq, "loss_frames": loss_frames,
             "remat": remat, "unroll": bool(unroll is True), "conv_backward": conv_backward,
-            "s_per_step": timeit(run, repeats)}
+            "warp": warp, "s_per_step": timeit(run, repeats)}
 
 
 def _torch():
@@ -224,16 +226,24 @@ def run(args):
                         _progress(rec)
         report["infer"] = rows
     if "train" in args.what:
-        rec = bench_train(args.factors[0], args.train_crop, args.train_batch, args.train_seq,
-                          args.train_loss_frames, args.repeats, remat=args.train_remat,
-                          unroll=True if args.train_unroll else 1,
-                          conv_backward=args.train_conv_backward)
+        rows = []
+        for warp in args.train_warps:
+            rec = bench_train(args.factors[0], args.train_crop, args.train_batch, args.train_seq,
+                              args.train_loss_frames, args.repeats, remat=args.train_remat,
+                              unroll=True if args.train_unroll else 1,
+                              conv_backward=args.train_conv_backward, warp=warp)
+            _progress(rec)
+            rows.append(rec)
+        rec = rows[0]
         if args.torch:
             ts = torch_train(args.factors[0], args.train_crop, args.train_batch, args.train_seq,
                              args.train_loss_frames, args.repeats)
             if ts is not None:
-                rec.update(torch_s_per_step=ts, torch_over_jtus=ts / rec["s_per_step"])
+                for r in rows:
+                    r.update(torch_s_per_step=ts, torch_over_jtus=ts / r["s_per_step"])
         report["train"] = rec
+        if len(rows) > 1:
+            report["train_warps"] = rows
         _progress(rec)
     return report
 
@@ -276,6 +286,10 @@ def markdown(report):
                   f"{r['conv_backward']} conv backward{', remat' if r['remat'] else ''}): "
                   f"jtus {r['s_per_step']:.3f} s, PyTorch {r.get('torch_s_per_step', float('nan')):.3f} s, "
                   f"torch/jtus {r.get('torch_over_jtus', float('nan')):.2f}."]
+    if "train_warps" in report:
+        lines += ["", "| reprojection warp | jtus s/step | torch/jtus |", "| --- | --- | --- |"]
+        lines += [f"| {r['warp']} | {r['s_per_step']:.3f} | "
+                  f"{r.get('torch_over_jtus', float('nan')):.2f} |" for r in report["train_warps"]]
     return "\n".join(lines)
 
 
@@ -298,6 +312,9 @@ def main(argv=None):
     p.add_argument("--train-seq", type=int, default=8)
     p.add_argument("--train-loss-frames", type=int, default=5)
     p.add_argument("--train-unroll", action="store_true", help="unroll the scan fully")
+    p.add_argument("--train-warps", nargs="+", default=["bicubic"], choices=sampling.METHODS,
+                   help="DLCTUS reprojection warps to time the training step with (the "
+                        "first is the headline figure; PyTorch's reference uses bicubic)")
     p.add_argument("--train-remat", action="store_true")
     p.add_argument("--train-conv-backward", choices=("custom", "autodiff"), default="custom")
     p.add_argument("--torch", action=argparse.BooleanOptionalAction, default=True,

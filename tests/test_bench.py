@@ -8,13 +8,16 @@ from jtus import bench, cost, models
 def test_bench_smoke(capsys):
     assert bench.main(["--sizes", "64", "--factors", "4", "--repeats", "1", "--models",
                        "dlctus", "jau", "tus", "--train-crop", "16", "--train-seq", "2",
-                       "--train-loss-frames", "1", "--train-batch", "1", "--json"]) == 0
+                       "--train-loss-frames", "1", "--train-batch", "1", "--train-warps", "bicubic",
+                       "nearest", "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["hardware"]["cores"] >= 1
     assert {r["model"] for r in report["infer"]} == {"dlctus", "jau", "tus"}
     dl = [r for r in report["infer"] if r["model"] == "dlctus"][0]
     assert dl["ms"] > 0 and dl["network_ms"] > 0 and "torch_over_jtus" in dl
     assert report["train"]["s_per_step"] > 0 and report["peak"]["matmul_gflops"] > 0
+    assert [r["warp"] for r in report["train_warps"]] == ["bicubic", "nearest"]
+    assert report["train"] == report["train_warps"][0]
 
 
 def test_dlctus_flop_count():
