@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
+import sys
 
 import numpy as np
 from common import ROOT, evaluate_videos, write  # noqa: E402
@@ -90,7 +91,8 @@ def main(argv=None):
         cfg = dataclasses.replace(cfg, epochs=args.ablation_epochs,
                                   model_overrides=(("accumulation", False),))
         work = os.path.join(ROOT, "runs", "ablation_no_accumulation")
-        params, _ = train.train_and_evaluate(cfg, work, resume=True)
+        params, _ = train.train_and_evaluate(cfg, work, resume=True,
+                                             progress=sys.stderr.isatty())
         rec = {"label": "dlctus accumulation=False (retrained)", "model": "dlctus"}
         rec.update(evaluate_videos(train._model(cfg), params, args.dataset, args.factor,
                                    max_videos=args.max_videos))

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
+import sys
 
 from common import ROOT, evaluate_videos, out_dir, write  # noqa: E402
 
@@ -22,7 +23,7 @@ def main(argv=None):
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--thetas", type=float, nargs="+", default=[0.1, 0.5, 0.9])
     p.add_argument("--factor", type=int, default=4)
-    p.add_argument("--epochs", type=int, default=4)
+    p.add_argument("--epochs", type=int, default=10)
     p.add_argument("--steps-per-epoch", type=int, default=100)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--dataset", default=os.path.join(ROOT, "data", "default.h5"))
@@ -37,7 +38,8 @@ def main(argv=None):
     rows = {}
     for label, config in runs:
         work = os.path.join(ROOT, "runs", "sweep_theta", label.replace(" ", "_").replace("=", ""))
-        params, _ = train.train_and_evaluate(config, work, resume=True)
+        params, _ = train.train_and_evaluate(config, work, resume=True,
+                                              progress=sys.stderr.isatty())
         rows[label] = evaluate_videos(train._model(config), params, args.dataset, args.factor,
                                       max_videos=args.max_videos)
     table = ["| loss | L_st-linear θ=0 (spatial) | L_st-linear θ=1 (temporal) | PSNR (dB) | SSIM |",

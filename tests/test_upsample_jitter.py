@@ -66,6 +66,33 @@ def test_dilate_motion_ties_keep_centre(rng):
     np.testing.assert_array_equal(out, motion)
 
 
+@pytest.mark.parametrize("factor", [2, 3, 4])
+def test_dense_bilinear_equals_sampling(x64, rng, factor):
+    """The gather-free bilinear up-sampling and JAU equal sampling the LR image at
+    the HR positions (per-tap border clamping included), in values and in
+    gradients with respect to the image and the jitter, to float64 rounding."""
+    from jtus.sampling.upsample import hr_to_lr_coords
+
+    x = jnp.asarray(rng.uniform(size=(3, 5, 7, 2)))
+    jit = jnp.asarray([[0.0, 0.0], [0.999, 0.5], [0.3, 1.0]])
+    b, h, w, _ = x.shape
+    grid = hr_to_lr_coords(b, h, w, factor, x.dtype)
+
+    def ref_jau(x, j):
+        return sampling.sample(x, grid - j[:, None, None, :] + 0.5, "bilinear")
+
+    np.testing.assert_allclose(sampling.upsample(x, factor),
+                               sampling.sample(x, grid, "bilinear"), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(sampling.jitter_aligned_upsample(x, jit, factor),
+                               ref_jau(x, jit), rtol=0, atol=1e-14)
+    cot = jnp.asarray(rng.normal(size=(b, h * factor, w * factor, 2)))
+    got = jax.grad(lambda x, j: jnp.sum(sampling.jitter_aligned_upsample(x, j, factor) * cot),
+                   argnums=(0, 1))(x, jit)
+    want = jax.grad(lambda x, j: jnp.sum(ref_jau(x, j) * cot), argnums=(0, 1))(x, jit)
+    for g, r in zip(got, want):
+        np.testing.assert_allclose(g, r, rtol=0, atol=1e-12)
+
+
 def test_upsample_bad_inputs():
     with pytest.raises(ValueError, match="factor"):
         sampling.pixel_unshuffle(jnp.zeros((1, 6, 6, 1)), 4)

@@ -78,15 +78,54 @@ def hr_to_lr_coords(batch, height, width, factor, dtype=jnp.float32):
     return pixel_grid(batch, height * factor, width * factor, dtype) / factor
 
 
+def _phase_weights(d):
+    """Bilinear weights of the taps at offsets -1, 0, 1 for fractional positions
+    ``d`` in (-1, 1) (any shape): ``[..., 3]``. The tap at ``floor(d)`` gets ``1 - t``
+    and the next one ``t``, ``t = d - floor(d)``; ``floor`` cuts no gradient, ``t``
+    carries it."""
+    fl = jnp.floor(d)
+    t = d - fl
+    lo = (fl < 0).astype(d.dtype)  # floor(d) = -1: taps -1, 0; else taps 0, 1
+    return jnp.stack([(1 - t) * lo, (1 - t) * (1 - lo) + t * lo, t * (1 - lo)], -1)
+
+
+def _bilinear_phases(x, factor, wx, wy):
+    """Dense bilinear up-sampling by an integer factor when the sampling positions
+    repeat with period ``factor``: HR pixel ``f*J + p`` reads LR index ``J + d_p``.
+
+    ``wx``, ``wy`` ``[B,f,3]``: the weights of LR offsets -1, 0, 1 per phase (from
+    ``_phase_weights``). Border taps replicate the edge, as the warp does, so this
+    equals ``sample(..., "bilinear")`` at those positions, without gathers: three
+    shifted slices per axis, x first and then y (the warp's order). Gradients are
+    dense too (no scatter-add)."""
+    b, h, w, c = x.shape
+    wx, wy = wx.astype(x.dtype), wy.astype(x.dtype)
+    p = jnp.pad(x, ((0, 0), (0, 0), (1, 1), (0, 0)), mode="edge")
+    taps = [p[:, :, 1 + k:1 + k + w] for k in (-1, 0, 1)]
+    cols = jnp.stack([sum(taps[k] * wx[:, None, None, None, ph, k] for k in range(3))
+                      for ph in range(factor)], 3).reshape(b, h, w * factor, c)
+    q = jnp.pad(cols, ((0, 0), (1, 1), (0, 0), (0, 0)), mode="edge")
+    taps = [q[:, 1 + k:1 + k + h] for k in (-1, 0, 1)]
+    out = jnp.stack([sum(taps[k] * wy[:, None, None, None, ph, k] for k in range(3))
+                     for ph in range(factor)], 2)
+    return out.reshape(b, h * factor, w * factor, c)
+
+
 def upsample(x, factor, method="bilinear", a=-0.75):
     """Plain up-sampling (no jitter): HR pixel centres sampled in the LR image.
 
     With ``bilinear`` this equals ``F.interpolate(mode='bilinear',
     align_corners=False)``; it is how motion vectors are brought to HR (values
-    are not rescaled: multiply by ``f`` for HR-pixel units).
+    are not rescaled: multiply by ``f`` for HR-pixel units). Bilinear runs as a
+    dense fixed-stencil filter (``_bilinear_phases``); the other methods sample.
     """
     _check_factor(factor)
     b, h, w, _ = x.shape
+    if method == "bilinear":
+        dt = jnp.promote_types(x.dtype, jnp.float32)
+        d = (jnp.arange(factor, dtype=dt) + 0.5) / factor - 0.5  # in (-0.5, 0.5)
+        wt = jnp.broadcast_to(_phase_weights(d), (b, factor, 3))
+        return _bilinear_phases(x, factor, wt, wt)
     return sample(x, hr_to_lr_coords(b, h, w, factor, x.dtype), method=method, a=a)
 
 
@@ -95,11 +134,20 @@ def jitter_aligned_upsample(x, jitter, factor, method="bilinear", a=-0.75):
 
     LR sample (i, j) was rendered at LR position ``(j, i) + jitter``; sampling
     the LR image at ``p - jitter + 0.5`` for each HR centre ``p`` puts that
-    sample exactly under its true position.
+    sample exactly under its true position. Bilinear runs as a dense fixed-stencil
+    filter with per-frame weights (jitter in [0, 1] keeps every position within one
+    LR pixel of its own); the other methods sample.
     """
     _check_factor(factor)
     _check_jitter(x, jitter)
     b, h, w, _ = x.shape
+    if method == "bilinear":
+        dt = jnp.promote_types(x.dtype, jnp.float32)
+        base = (jnp.arange(factor, dtype=dt) + 0.5) / factor      # [f]
+        j = jitter.astype(dt)
+        wx = _phase_weights(base[None, :] - j[:, 0:1])                      # [B,f,3]
+        wy = _phase_weights(base[None, :] - j[:, 1:2])
+        return _bilinear_phases(x, factor, wx, wy)
     xy = hr_to_lr_coords(b, h, w, factor, x.dtype)
     xy = xy - jitter.astype(x.dtype)[:, None, None, :] + 0.5
     return sample(x, xy, method=method, a=a)
