@@ -362,9 +362,11 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
     start_epoch, history = 0, []
     cfg_path = os.path.join(workdir, "config.json")
     if resume and os.path.exists(os.path.join(workdir, "checkpoint.msgpack")):
-        if os.path.exists(cfg_path) and config_from_json(cfg_path) != config:
+        # a resumed run may be extended (more --epochs); anything else must match
+        if (os.path.exists(cfg_path) and dataclasses.replace(
+                config_from_json(cfg_path), epochs=config.epochs) != config):
             raise ValueError(f"{workdir}: --resume with a different config than "
-                             f"{cfg_path}; use a new --workdir")
+                             f"{cfg_path} (only --epochs may change); use a new --workdir")
         ts, start_epoch, history = load_checkpoint(workdir, ts)
         print(f"resumed {workdir} after epoch {start_epoch}", file=sys.stderr)
     with open(cfg_path, "w") as fh:

@@ -43,6 +43,14 @@ def test_killed_run_resumes_to_the_same_parameters(tiny_data, tmp_path):
                  "config.json"):
         assert (tmp_path / "cut" / name).exists()
     assert not [f for f in os.listdir(tmp_path / "cut") if f.endswith(".tmp")]
+    # a finished run extended with more epochs lands where the longer run lands
+    short = dataclasses.replace(config, epochs=2)
+    train.train_and_evaluate(short, tmp_path / "ext", progress=False)
+    extended, hist = train.train_and_evaluate(config, tmp_path / "ext", resume=True,
+                                              progress=False)
+    assert [h["epoch"] for h in hist] == [1, 2, 3]
+    for a, b in zip(_leaves(full), _leaves(extended)):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_resume_refuses_another_config(tiny_data, tmp_path):
