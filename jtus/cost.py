@@ -111,3 +111,49 @@ def cost(model_name, config, H, W) -> Cost:
     if kind not in fns:
         raise ValueError(f"cost: no formula for model {model_name!r}")
     return fns[kind](config, H, W)
+
+
+def table(names=None, factors=(4, 2), height=1080, width=1920) -> str:
+    """A markdown table of parameters, FLOPs and bytes per output pixel and per frame
+    (the layout of Table 2 of Herveau et al.)."""
+    import jax
+
+    from jtus import models
+
+    names = names or models.NAMES
+    lines = [f"Per output pixel and per {width}x{height} frame, float32 "
+             "(`jtus/cost.py`):", "",
+             "| model | factor | parameters | FLOP / pixel | network FLOP / pixel | "
+             "bytes / pixel (compulsory) | GFLOP / frame | MB / frame |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for name in names:
+        for f in factors:
+            m = models.build(name, f)
+            c = cost(name, m.config, height, width)
+            params = (models.param_count(jax.eval_shape(m.init, jax.random.PRNGKey(0)))
+                      if name in models.TRAINABLE else 0)
+            px = height * width
+            lines.append(f"| {name} | {f}x | {params:,} | {c.flops / px:,.0f} | "
+                         f"{c.network_flops / px:,.0f} | {c.bytes / px:.1f} | "
+                         f"{c.flops / 1e9:.2f} | {c.bytes / 1e6:.0f} |")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    import argparse
+
+    from jtus import models
+
+    p = argparse.ArgumentParser(prog="python -m jtus.cost",
+                                description="FLOPs and bytes per output pixel of every model.")
+    p.add_argument("--models", nargs="+", default=list(models.NAMES), choices=models.NAMES)
+    p.add_argument("--factors", nargs="+", type=int, default=[4, 2])
+    p.add_argument("--height", type=int, default=1080)
+    p.add_argument("--width", type=int, default=1920)
+    args = p.parse_args(argv)
+    print(table(args.models, args.factors, args.height, args.width))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -26,3 +26,12 @@ def test_dlctus_flop_count():
     n = 270 * 480
     assert c.network_flops == n * 32 * 128 * 2 + 8 * n * 32 * 32 * 9 * 2 + n * 32 * 4 * 3
     assert abs(c.network_flops / 1e9 - 20.22) < 0.01
+
+
+def test_cost_table_lists_every_model(capsys):
+    assert cost.main(["--factors", "4"]) == 0
+    out = capsys.readouterr().out
+    rows = [line for line in out.splitlines() if line.startswith("| ") and "4x" in line]
+    assert [r.split(" | ")[0][2:] for r in rows] == list(models.NAMES)
+    dl = [r for r in rows if r.startswith("| dlctus |")][0]
+    assert "78,112" in dl and "20.68" in dl
