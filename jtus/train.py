@@ -297,6 +297,31 @@ def load_params(path, config_path=None):
     return params, config
 
 
+def export_params(workdir, out_base):
+    """Write a run's parameters alone (no optimizer state) as ``out_base.msgpack``, its
+    config as ``out_base.json`` and its per-epoch log as ``out_base-training.csv``,
+    each atomically: the form ``jtus/weights/`` ships and ``load_params`` reads."""
+    import shutil
+
+    from flax import serialization
+
+    from jtus.data.dataset import atomic_path
+
+    params, config = load_params(os.path.join(workdir, "checkpoint.msgpack"))
+    os.makedirs(os.path.dirname(os.path.abspath(out_base)), exist_ok=True)
+    with atomic_path(out_base + ".msgpack") as tmp:
+        with open(tmp, "wb") as fh:
+            fh.write(serialization.to_bytes({"params": params}))
+    with atomic_path(out_base + ".json") as tmp:
+        with open(tmp, "w") as fh:
+            fh.write(config_to_json(config))
+    csv = os.path.join(workdir, "metrics.csv")
+    if os.path.exists(csv):
+        with atomic_path(out_base + "-training.csv") as tmp:
+            shutil.copyfile(csv, tmp)
+    return out_base + ".msgpack"
+
+
 def config_to_json(config: Config):
     return json.dumps(dataclasses.asdict(config), indent=1)
 

@@ -43,6 +43,12 @@ def test_killed_run_resumes_to_the_same_parameters(tiny_data, tmp_path):
                  "config.json"):
         assert (tmp_path / "cut" / name).exists()
     assert not [f for f in os.listdir(tmp_path / "cut") if f.endswith(".tmp")]
+    # exported parameters load back unchanged, with their config
+    path = train.export_params(str(tmp_path / "full"), str(tmp_path / "shipped" / "m-x4"))
+    params, cfg = train.load_params(path, str(tmp_path / "shipped" / "m-x4.json"))
+    assert cfg == config
+    for a, b in zip(_leaves(full), _leaves(params)):
+        np.testing.assert_array_equal(a, b)
     # a finished run extended with more epochs lands where the longer run lands
     short = dataclasses.replace(config, epochs=2)
     train.train_and_evaluate(short, tmp_path / "ext", progress=False)
