@@ -137,7 +137,13 @@ def bench_train(factor, crop, batch, seq, loss_frames, repeats, remat=False, unr
         ts[0], _, stats = step(ts[0], carry, frames, targets)
         stats["loss"].block_until_ready()
 
+    from jtus import cost
+    # a training step runs the network forward and, for the frames that reach the loss,
+    # its two backward products (input and kernel gradients), each as costly as the
+    # forward: at least 3x the forward FLOPs of every frame (BPTT reaches all of them)
+    fwd = cost.cost("dlctus", model.config, crop, crop).flops * batch * seq
     return {"factor": factor, "crop": crop, "batch": batch, "seq": seq, "loss_frames": loss_frames,
+            "gflop_per_step": 3 * fwd / 1e9,
             "remat": remat, "unroll": bool(unroll is True), "conv_backward": conv_backward,
             "warp": warp, "s_per_step": timeit(run, repeats)}
 
@@ -241,6 +247,10 @@ def run(args):
             if ts is not None:
                 for r in rows:
                     r.update(torch_s_per_step=ts, torch_over_jtus=ts / r["s_per_step"])
+        peak = report.get("peak", {}).get("conv_dlctus_gflops")
+        if peak:
+            for r in rows:
+                r["bound_s_at_conv_peak"] = r["gflop_per_step"] / peak
         report["train"] = rec
         if len(rows) > 1:
             report["train_warps"] = rows
@@ -286,6 +296,15 @@ def markdown(report):
                   f"{r['conv_backward']} conv backward{', remat' if r['remat'] else ''}): "
                   f"jtus {r['s_per_step']:.3f} s, PyTorch {r.get('torch_s_per_step', float('nan')):.3f} s, "
                   f"torch/jtus {r.get('torch_over_jtus', float('nan')):.2f}."]
+        if "bound_s_at_conv_peak" in r:
+            lines += ["", f"At least {r['gflop_per_step']:.1f} GFLOP per step (3x the forward "
+                          f"FLOPs of {r['batch']} x {r['seq']} frames): "
+                          f"{r['bound_s_at_conv_peak']:.3f} s at the measured convolution peak, "
+                          f"so no implementation on this machine's convolutions beats that; "
+                          f"PyTorch's step is "
+                          f"{r.get('torch_s_per_step', float('nan')) / r['bound_s_at_conv_peak']:.2f}x "
+                          f"that bound and jtus's "
+                          f"{r['s_per_step'] / r['bound_s_at_conv_peak']:.2f}x."]
     if "train_warps" in report:
         lines += ["", "| reprojection warp | jtus s/step | torch/jtus |", "| --- | --- | --- |"]
         lines += [f"| {r['warp']} | {r['s_per_step']:.3f} | "
