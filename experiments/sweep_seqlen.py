@@ -4,6 +4,10 @@ step, compiled memory, and quality over whole videos, including after 300+ frame
     python experiments/sweep_seqlen.py                      # lengths 2 4 8 16 30
     python experiments/sweep_seqlen.py --lengths 4 8 --steps 200 --long-frames 320
 
+Training and quality use the ``long`` data (40-frame videos at 128x128, generated into
+``data/long.h5`` in about two minutes when missing): the ``default`` data's training
+videos have 24 frames, too few for 30-frame sequences.
+
 Memory is XLA's own account of the compiled train step (arguments, outputs and
 temporaries, ``compiled.memory_analysis()``): the peak the step needs, independent of
 what else the process holds. The long-horizon video (a built-in scene rendered for
@@ -15,6 +19,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
+import sys
 import time
 
 import jax
@@ -61,11 +66,13 @@ def main(argv=None):
     p.add_argument("--steps", type=int, default=150, help="training steps per configuration")
     p.add_argument("--long-frames", type=int, default=320)
     p.add_argument("--long-size", type=int, default=128)
-    p.add_argument("--dataset", default=os.path.join(ROOT, "data", "default.h5"))
+    p.add_argument("--dataset", default=os.path.join(ROOT, "data", "long.h5"),
+                   help="generated from the `long` preset (40-frame videos) when missing")
     p.add_argument("--max-videos", type=int, default=4)
     args = p.parse_args(argv)
     base = dataclasses.replace(train.PRESETS["default"], factor=args.factor, crop=args.crop,
-                               batch=args.batch, dataset=args.dataset)
+                               batch=args.batch, dataset=args.dataset, data_preset="long")
+    train.ensure_dataset(base, progress=sys.stderr.isatty())
     long_frames, long_targets = jax.tree_util.tree_map(
         jnp.asarray, _long_video(args.factor, args.long_frames, args.long_size))
     rows = []
@@ -115,7 +122,8 @@ def main(argv=None):
                      f"{r['temporal']:.5f} | {r['long_psnr']:.2f} |")
     d = write("seqlen", "\n".join(table), rows,
               f"DLCTUS {args.factor}x, crop {args.crop}, batch {args.batch}, {args.steps} steps per "
-              f"row (TBPTT: k1 = k2 = length / 2); quality on {args.max_videos} test videos.")
+              f"row (TBPTT: k1 = k2 = length / 2); trained on `{os.path.relpath(args.dataset, ROOT)}`, "
+              f"quality on {args.max_videos} of its test videos.")
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -66,12 +66,17 @@ def _presets():
             "train": (all_, 2, 24),
             "val": (("camera_orbit", "objects", "fence_pan", "everything"), 1, 24),
             "test": (all_, 1, 30)}),
+        # 40-frame videos at 128x128 for sequence-length studies (BPTT over up to 40
+        # frames; the default data's training videos have 24)
+        "long": Preset((128, 128), (2, 4), 16, 1, {
+            "train": (all_, 1, 40), "val": (("camera_orbit", "everything"), 1, 40),
+            "test": (all_, 1, 40)}),
         "paper": Preset((1080, 1920), (2, 4), 64, 1, {
             "train": (all_, 6, 60), "val": (all_[:10], 1, 60), "test": (all_[:10], 1, 60)}),
     }
 
 
-PRESET_NAMES = ("tiny", "default", "paper")
+PRESET_NAMES = ("tiny", "default", "long", "paper")
 
 
 def preset(name) -> Preset:
