@@ -28,8 +28,10 @@ SECTIONS = [
 ]
 
 RUNS = {
-    "full": [["experiments/pareto.py", "--train-ablations"],
-             ["experiments/sweep_theta.py"],
+    "full": [["experiments/sweep_theta.py"],
+             ["experiments/pareto.py", "--train-ablations"]
+             + [f"--checkpoint={m}=experiments/weights/{m}-x4.msgpack"
+                for m in ("nsrr", "nsrr-fast", "kpn", "mlp")],
              ["experiments/sweep_seqlen.py"],
              ["experiments/stability.py"]],
     "quick": [["experiments/pareto.py", "--sizes", "256", "720p", "--max-videos", "4"],
