@@ -95,10 +95,14 @@ def main(argv=None):
                           (False, os.path.join(ROOT, "runs", "ablation_no_accumulation"))):
             cfg = base if acc else dataclasses.replace(
                 base, model_overrides=(("accumulation", False),))
-            params, _ = train.train_and_evaluate(cfg, work, resume=True,
-                                                 progress=sys.stderr.isatty())
-            rec = {"label": f"dlctus accumulation={acc} ({args.ablation_epochs}x100 steps)",
-                   "model": "dlctus"}
+            params, hist = train.train_and_evaluate(cfg, work, resume=True,
+                                                    progress=sys.stderr.isatty())
+            # a network whose clamped outputs saturate stops learning (docs/weights.md):
+            # its validation loss then repeats exactly from epoch to epoch
+            collapsed = len(hist) > 2 and len({h["val_loss"] for h in hist[1:]}) == 1
+            rec = {"label": f"dlctus accumulation={acc} ({args.ablation_epochs}x100 steps"
+                            f"{'; collapsed: validation constant from epoch 2' if collapsed else ''})",
+                   "model": "dlctus", "collapsed": collapsed}
             rec.update(evaluate_videos(train._model(cfg), params, args.dataset, args.factor,
                                        max_videos=args.max_videos))
             rows.append(rec)

@@ -444,6 +444,10 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
                    "val_ssim": float(np.mean(np.concatenate(ssim))) if ssim else float("nan"),
                    "seconds": time.perf_counter() - t0}
             history.append(rec)
+            if len(history) >= 3 and len({h["val_loss"] for h in history[-3:]}) == 1:
+                print("warning: the validation loss has not changed for 3 epochs: the "
+                      "network may have collapsed (saturated outputs pass no gradient; "
+                      "try a lower --lr, see docs/weights.md)", file=sys.stderr)
             save_checkpoint(workdir, ts, epoch, history)
             _write_csv(workdir, history)
             plot_history(history, os.path.join(workdir, "training.png"))
