@@ -294,7 +294,8 @@ def load_params(path, config_path=None):
     with open(path, "rb") as fh:
         raw = serialization.msgpack_restore(fh.read())
     params = serialization.from_state_dict(params, raw["params"])
-    return params, config
+    # device arrays: numpy leaves cannot be indexed by traced values (KPN's phase)
+    return jax.tree_util.tree_map(jnp.asarray, params), config
 
 
 def export_params(workdir, out_base):

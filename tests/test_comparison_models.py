@@ -159,7 +159,8 @@ def test_trains_with_decreasing_loss_and_evaluates(tiny_data, tmp_path, name, lo
     out = tmp_path / "eval"
     assert evaluate.main(["--dataset", tiny_data, "--factor", "4", "--models", "jau",
                           f"{name}={tmp_path / 'checkpoint.msgpack'}", "--out", str(out),
-                          "--quiet", "--no-crops"]) == 0
+                          "--quiet"]) == 0
+    assert (out / "crops_x4.png").exists()
     summary = json.loads((out / "results.json").read_text())
     assert np.isfinite(summary["4"][name]["psnr"])
 
