@@ -42,6 +42,19 @@ RUNS = {
               ["experiments/stability.py", "--frames", "600", "--size", "64"]],
 }
 
+# Reading notes that hold for any run of the section
+NOTES = {
+    "pareto": "Reading the ablation rows: a network whose clamped outputs saturate stops "
+              "learning; `experiments/pareto.py` labels it `collapsed` when its validation "
+              "loss repeats exactly (rows written before that label existed are not "
+              "labelled: see `docs/weights.md` for the run shown, whose `accumulation=False` "
+              "network collapsed). Timings were taken with the machine otherwise idle; "
+              "quality columns are on the shipped (DLCTUS) or `experiments/weights/` "
+              "parameters.",
+    "seqlen": "Seconds per step compare rows within one run: the machine may have been "
+              "shared (the run shown shared it with a training job).",
+}
+
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__,
@@ -67,6 +80,8 @@ def main(argv=None):
                 parts.append(fh.read().strip())
             if img and os.path.exists(os.path.join(RESULTS, name, img)):
                 parts += ["", f"![{name}](results/{name}/{img})"]
+            if name in NOTES:
+                parts += ["", NOTES[name]]
         else:
             parts.append(f"Not run yet: see `experiments/` (`{name}`).")
         parts.append("")
