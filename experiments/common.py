@@ -44,6 +44,20 @@ def write(name, table, data, note=""):
     return d
 
 
+def l1_recipe(factor, epochs, dataset, steps_per_epoch=100, seed=0):
+    """The short DLCTUS recipe the θ sweep trains with L1 and the accumulation ablation
+    reuses (its L1 run is the ablation's network with the buffer): the ``default``
+    preset with one validation video. Returns ``(config, workdir of the L1 run)``."""
+    import dataclasses
+
+    from jtus import train
+
+    config = dataclasses.replace(train.PRESETS["default"], factor=factor, epochs=epochs,
+                                 steps_per_epoch=steps_per_epoch, seed=seed, dataset=dataset,
+                                 val_videos=1)
+    return config, os.path.join(ROOT, "runs", "sweep_theta", "L1")
+
+
 def evaluate_videos(model, params, dataset_path, factor, split="test", max_videos=None):
     """Means over whole videos of ``jtus.train.video_metrics`` (PSNR, SSIM, spatial and
     temporal error)."""

@@ -23,7 +23,7 @@ import os
 import sys
 
 import numpy as np
-from common import ROOT, evaluate_videos, write  # noqa: E402
+from common import ROOT, evaluate_videos, l1_recipe, write  # noqa: E402
 
 from jtus import bench, evaluate, models, train
 
@@ -88,10 +88,8 @@ def main(argv=None):
     if args.train_ablations:
         # Table 16 needs two networks trained alike, with and without the accumulation
         # buffer: the θ sweep's L1 recipe (its run is reused when it exists)
-        base = dataclasses.replace(train.PRESETS["default"], factor=args.factor,
-                                   epochs=args.ablation_epochs, steps_per_epoch=100,
-                                   dataset=args.dataset, val_videos=1)
-        for acc, work in ((True, os.path.join(ROOT, "runs", "sweep_theta", "L1")),
+        base, l1_work = l1_recipe(args.factor, args.ablation_epochs, args.dataset)
+        for acc, work in ((True, l1_work),
                           (False, os.path.join(ROOT, "runs", "ablation_no_accumulation"))):
             cfg = base if acc else dataclasses.replace(
                 base, model_overrides=(("accumulation", False),))

@@ -13,7 +13,7 @@ import dataclasses
 import os
 import sys
 
-from common import ROOT, evaluate_videos, out_dir, write  # noqa: E402
+from common import ROOT, evaluate_videos, l1_recipe, write  # noqa: E402
 
 from jtus import train
 
@@ -29,9 +29,7 @@ def main(argv=None):
     p.add_argument("--dataset", default=os.path.join(ROOT, "data", "default.h5"))
     p.add_argument("--max-videos", type=int)
     args = p.parse_args(argv)
-    base = dataclasses.replace(train.PRESETS["default"], factor=args.factor, epochs=args.epochs,
-                               steps_per_epoch=args.steps_per_epoch, seed=args.seed,
-                               dataset=args.dataset, val_videos=1)
+    base, _ = l1_recipe(args.factor, args.epochs, args.dataset, args.steps_per_epoch, args.seed)
     runs = [("L1", base)] + [(f"L_st-linear θ={t}", dataclasses.replace(base, loss="st-linear",
                                                                        theta=t))
                              for t in args.thetas]

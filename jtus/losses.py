@@ -75,13 +75,14 @@ def _temporal(kind, theta, factor, method, out, target, prev_out, prev_target, h
     return jnp.mean(st_linear_terms(x, y, theta))
 
 
-def with_perceptual(base, vgg_params, weight=0.1):
+def with_perceptual(base, weights_path, weight=0.1):
     """``base + weight * perceptual`` (NSRR's eq. 1 with ``base`` = 1 - SSIM), the
-    perceptual term of ``jtus.perceptual`` on VGG-16 weights ``vgg_params``."""
+    perceptual term of ``jtus.perceptual`` on the VGG-16 weights in ``weights_path``."""
     from jtus import perceptual
 
     if not weight >= 0.0:
         raise ValueError(f"perceptual_weight: expected a value >= 0, got {weight}")
+    vgg_params = perceptual.load_vgg16(weights_path)
 
     def loss(out, target, *rest):
         return base(out, target, *rest) + weight * perceptual.loss(vgg_params, out, target)
@@ -103,7 +104,5 @@ def make(name, factor, theta=0.5, method="bilinear", perceptual_weights=None,
     else:
         raise ValueError(f"loss: expected one of {NAMES}, got {name!r}")
     if perceptual_weights:
-        from jtus import perceptual
-        return with_perceptual(base, perceptual.load_vgg16(perceptual_weights),
-                               perceptual_weight)
+        return with_perceptual(base, perceptual_weights, perceptual_weight)
     return base

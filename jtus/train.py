@@ -175,14 +175,11 @@ def _loss(config: Config):
     if config.loss == "kpn":  # Herveau et al.'s alias-masked reference/gradient/temporal loss
         from jtus.models import kpn
         loss = kpn.make_loss(config.factor)
-        if config.perceptual_weights:
-            from jtus import perceptual
-            loss = losses.with_perceptual(loss, perceptual.load_vgg16(
-                config.perceptual_weights), config.perceptual_weight)
-        return loss
-    return losses.make(config.loss, config.factor, theta=config.theta,
-                       perceptual_weights=config.perceptual_weights or None,
-                       perceptual_weight=config.perceptual_weight)
+    else:
+        loss = losses.make(config.loss, config.factor, theta=config.theta)
+    if config.perceptual_weights:
+        loss = losses.with_perceptual(loss, config.perceptual_weights, config.perceptual_weight)
+    return loss
 
 
 def _accept(config: Config):

@@ -93,3 +93,26 @@ def test_bad_weight_files(tmp_path, vgg_file):
     (tmp_path / "junk.npz").write_bytes(b"not a zip")
     with pytest.raises(ValueError, match="not a readable"):
         perceptual.load_vgg16(str(tmp_path / "junk.npz"))
+
+
+@pytest.mark.parametrize("loss", ["l1", "kpn"])
+def test_training_config_adds_the_term_to_any_loss(vgg_file, loss):
+    import dataclasses
+
+    import jax.numpy as jnp
+
+    from jtus import train
+    from jtus.frame import Frame
+
+    _, path = vgg_file
+    rng = np.random.default_rng(3)
+    out = jnp.asarray(rng.random((1, 32, 32, 3)), jnp.float32)
+    tgt = jnp.asarray(rng.random((1, 32, 32, 3)), jnp.float32)
+    frame = Frame(jnp.asarray(rng.random((1, 8, 8, 3)), jnp.float32), jnp.ones((1, 8, 8, 1)),
+                  jnp.zeros((1, 8, 8, 2)), jnp.full((1, 2), 0.5))
+    args = (out, tgt, out, tgt, jnp.asarray([True]), frame)
+    base = train.Config(loss=loss)
+    with_term = dataclasses.replace(base, perceptual_weights=path, perceptual_weight=0.5)
+    term = perceptual.loss(perceptual.load_vgg16(path), out, tgt)
+    np.testing.assert_allclose(float(train._loss(with_term)(*args)),
+                               float(train._loss(base)(*args)) + 0.5 * float(term), rtol=1e-5)
