@@ -1,7 +1,7 @@
 #!/bin/bash
 # Trains the comparison systems (NSRR, NSRR-fast, KPN, MLP) on the default data at 4x
-# and 2x, with the step budgets that fit a 2-core CPU (about an hour in all; see
-# docs/results.md for the measured times). The checkpoints land in runs/<model>-x<f>/
+# and 2x, with the step budgets that fit a 2-core CPU (about 1.5 hours in all; see
+# docs/comparison.md for the measured time). The checkpoints land in runs/<model>-x<f>/
 # and their parameters are exported to experiments/weights/<model>-x<f>.msgpack (with
 # the config and the per-epoch log), which the README's evaluation command reads:
 #   python -m jtus.evaluate --models jau tus shipped 'nsrr=experiments/weights/nsrr-x{f}.msgpack' ...
