@@ -83,9 +83,11 @@ def _inputs(h, w, b=1, seed=0):
                  jnp.asarray(r.uniform(size=(b, 2)), jnp.float32))
 
 
-def bench_infer(name, factor, size, repeats, dtype="float32", **overrides):
-    from jtus import cost, models
-    from jtus.models import dlctus
+def infer_workload(name, factor, size, dtype="float32", **overrides):
+    """One jitted inference step of ``name`` at HR ``size``, its state donated.
+    Returns ``(run, hlo, model, params, state, frame)``: ``run()`` steps once and
+    blocks; ``hlo()`` is the compiled module's text (for profiles)."""
+    from jtus import models
 
     H, W = size
     over = dict({"dtype": dtype} if name == "dlctus" else {}, **overrides)
@@ -99,6 +101,18 @@ def bench_infer(name, factor, size, repeats, dtype="float32", **overrides):
         out, state[0] = step(params, state[0], frame)
         out.block_until_ready()
 
+    def hlo():
+        return step.lower(params, state[0], frame).compile().as_text()
+
+    return run, hlo, model, params, state, frame
+
+
+def bench_infer(name, factor, size, repeats, dtype="float32", **overrides):
+    from jtus import cost
+    from jtus.models import dlctus
+
+    H, W = size
+    run, _, model, params, state, frame = infer_workload(name, factor, size, dtype, **overrides)
     seconds = timeit(run, repeats)
     c = cost.cost(name, model.config, H, W)
     rec = {"model": name, "factor": factor, "size": f"{H}x{W}", "dtype": dtype, **overrides,
@@ -112,8 +126,11 @@ def bench_infer(name, factor, size, repeats, dtype="float32", **overrides):
     return rec
 
 
-def bench_train(factor, crop, batch, seq, loss_frames, repeats, remat=False, unroll=1,
-                conv_backward="custom", warp="bicubic"):
+def train_workload(factor, crop, batch, seq, loss_frames, remat=False, unroll=1,
+                   conv_backward="custom", warp="bicubic"):
+    """One DLCTUS BPTT training step (L1 loss, Adam) on random data.
+    Returns ``(run, hlo, model)``: ``run()`` takes one step and blocks; ``hlo()`` is
+    the compiled module's text (for profiles)."""
     import optax
 
     from jtus import losses, rollout, train
@@ -131,13 +148,26 @@ def bench_train(factor, crop, batch, seq, loss_frames, repeats, remat=False, unr
     targets = jnp.asarray(np.random.default_rng(9).uniform(size=(seq, batch, crop, crop, 3)),
                           jnp.float32)
 
+    def carry():
+        return rollout.start(model.init_state(jax.tree_util.tree_map(lambda x: x[0], frames)),
+                             targets[0])
+
     def run():
-        carry = rollout.start(model.init_state(jax.tree_util.tree_map(lambda x: x[0], frames)),
-                              targets[0])
-        ts[0], _, stats = step(ts[0], carry, frames, targets)
+        ts[0], _, stats = step(ts[0], carry(), frames, targets)
         stats["loss"].block_until_ready()
 
+    def hlo():
+        return step.lower(ts[0], carry(), frames, targets).compile().as_text()
+
+    return run, hlo, model
+
+
+def bench_train(factor, crop, batch, seq, loss_frames, repeats, remat=False, unroll=1,
+                conv_backward="custom", warp="bicubic"):
     from jtus import cost
+
+    run, _, model = train_workload(factor, crop, batch, seq, loss_frames, remat, unroll,
+                                   conv_backward, warp)
     # a training step runs the network forward and, for the frames that reach the loss,
     # its two backward products (input and kernel gradients), each as costly as the
     # forward: at least 3x the forward FLOPs of every frame (BPTT reaches all of them)

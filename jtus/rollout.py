@@ -96,8 +96,9 @@ def _segment(body, loss_fn, carry, frames, targets, with_loss, unroll):
     def f(c, xs):
         frame, target = xs
         out, state = body(c.state, frame)
-        loss = (loss_fn(out, target, c.prev_out, c.prev_target, c.has_prev, frame)
-                if with_loss else jnp.zeros((), jnp.float32))
+        with jax.named_scope("loss"):
+            loss = (loss_fn(out, target, c.prev_out, c.prev_target, c.has_prev, frame)
+                    if with_loss else jnp.zeros((), jnp.float32))
         return Carry(state, out.astype(jnp.float32), target.astype(jnp.float32),
                      jnp.asarray(True)), loss
 

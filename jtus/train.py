@@ -66,8 +66,9 @@ def make_train_step(model, loss_fn, optimizer, *, loss_frames, keep_at=None, rem
                                        unroll=unroll)
 
         (loss, (last, kept)), grads = jax.value_and_grad(f, has_aux=True)(ts.params)
-        updates, opt_state = optimizer.update(grads, ts.opt_state, ts.params)
-        params = optax.apply_updates(ts.params, updates)
+        with jax.named_scope("optimizer"):
+            updates, opt_state = optimizer.update(grads, ts.opt_state, ts.params)
+            params = optax.apply_updates(ts.params, updates)
         nxt = jax.lax.stop_gradient(kept if keep_at is not None else last)
         stats = {"loss": loss, "grad_norm": optax.tree.norm(grads),
                  "param_norm": optax.tree.norm(params)}

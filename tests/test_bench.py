@@ -35,3 +35,39 @@ def test_cost_table_lists_every_model(capsys):
     assert [r.split(" | ")[0][2:] for r in rows] == list(models.NAMES)
     dl = [r for r in rows if r.startswith("| dlctus |")][0]
     assert "78,112" in dl and "20.68" in dl
+
+
+def test_profile_attributes_a_training_step_to_its_stages(tmp_path, capsys):
+    """``python -m jtus.profile`` finds the step's ops in the trace and names their stage
+    and pass: the network runs forward and backward, the reprojection's image gradient
+    is one scatter per frame segment, and the shares add up."""
+    from jtus import profile
+
+    out = tmp_path / "p"
+    assert profile.main(["--factor", "4", "--crop", "32", "--batch", "1", "--seq", "3",
+                         "--loss-frames", "2", "--steps", "1", "--out", str(out)]) == 0
+    assert "| network |" in capsys.readouterr().out
+    report = json.loads((tmp_path / "p.json").read_text())
+    s = report["summary"]
+    assert s["stage_pass"]["network/forward"] > 0 and s["stage_pass"]["network/backward"] > 0
+    assert s["stage_pass"]["reprojection/forward"] > 0
+    assert s["kind"]["scatter"] > 0 and s["kind"]["convolution"] > 0
+    assert abs(sum(s["stage"].values()) - s["op_ms_per_step"]) < 1e-6 * s["op_ms_per_step"]
+    assert abs(sum(s["pass"].values()) - s["op_ms_per_step"]) < 1e-6 * s["op_ms_per_step"]
+    assert (tmp_path / "p.md").read_text().startswith("Profile of the DLCTUS 4x training step")
+
+
+def test_profile_classifies_ops_by_their_jax_origin():
+    from jtus.profile import classify, hlo_ops
+
+    text = ('  %ynn_fusion.3 = f32[4,34,34,32]{3,2,1,0} fusion(%a, %b), kind=kCustom, '
+            'metadata={op_name="jit(train_step)/jvp()/while/body/closed_call/network/'
+            'conv_general_dilated" stack_frame_id=3}\n'
+            '  ROOT %wrapped_scatter.2 = f32[65536,4]{1,0} fusion(%c), kind=kLoop, metadata='
+            '{op_name="jit(train_step)/transpose(jvp())/while/body/closed_call/reprojection/'
+            'scatter-add"}\n')
+    ops = hlo_ops(text)
+    assert classify("ynn_fusion.3", *ops["ynn_fusion.3"]) == ("network", "forward", "convolution")
+    assert classify("wrapped_scatter.2", *ops["wrapped_scatter.2"]) == (
+        "reprojection", "backward", "scatter")
+    assert classify("copy.7", "copy", "") == ("other", "forward", "copy/slice")

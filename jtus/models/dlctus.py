@@ -126,20 +126,49 @@ def _trunk(params, h, config):
     return h
 
 
-def _down(params, x, config):
+class NetInput(NamedTuple):
+    """The network's input before assembly: ``concat(zero_upsample(lr), hist)``."""
+    lr: jax.Array      # [B,h,w,4] RGB and linear depth, low resolution
+    jitter: jax.Array  # [B,2]
+    hist: jax.Array    # [B,H,W,4] the reprojected history
+
+
+def assemble(x: NetInput, config: Config):
+    """The dense 8-channel network input ``[B,H,W,8]`` (eq. 46's input)."""
+    zero = sampling.zero_upsample(x.lr, x.jitter, config.factor)
+    return jnp.concatenate([zero, x.hist.astype(zero.dtype)], -1)
+
+
+def _down(params, x: NetInput, config, dt):
     k, b = params["down"]["kernel"], params["down"]["bias"]
-    if config.formulation == "opt2":
-        xs = sampling.pixel_unshuffle(x, DOWN)  # channel c*16 + dy*4 + dx
-        k1 = k.transpose(2, 0, 1, 3).reshape(-1, k.shape[-1]).astype(x.dtype)
-        return xs @ k1 + b.astype(x.dtype)
-    return layers.conv(x, k, b, stride=DOWN, padding="VALID")
+    if config.formulation != "opt2":
+        return layers.conv(assemble(x, config).astype(dt), k, b, stride=DOWN, padding="VALID")
+    # opt2: space-to-depth then a matmul, with the zero-up-sampled half never built.
+    # In a 4x4 block the zero-up-sampled image is non-zero only at the sub-pixels the
+    # LR samples land on (row f*a + cell_y, column f*b + cell_x, for the m x m LR pixels
+    # of the block, m = 4 / f), so its product with the kernel is the LR image,
+    # space-to-depth by m, times the kernel rows of those sub-pixels (chosen per frame
+    # from the jitter). The history half is space-to-depth by 4 times its kernel rows.
+    f, m = config.factor, DOWN // config.factor
+    nb, c_lr = x.lr.shape[0], x.lr.shape[-1]
+    cell = sampling.jitter_cell(x.jitter, f)                     # [B,2] (x, y)
+    rows = f * jnp.arange(m)
+    dy, dx = rows[None, :] + cell[:, 1:2], rows[None, :] + cell[:, 0:1]   # [B,m]
+    k_lr = jnp.asarray(k)[dy[:, :, None], dx[:, None, :], :c_lr]              # [B,m,m,c,O]
+    k_lr = k_lr.transpose(0, 3, 1, 2, 4).reshape(nb, c_lr * m * m, -1)  # row c*m*m + a*m + b
+    lr = sampling.pixel_unshuffle(x.lr, m) if m > 1 else x.lr
+    zero_part = jnp.einsum("bhwk,bko->bhwo", lr.astype(dt), k_lr.astype(dt))
+    k_h = k[:, :, c_lr:].transpose(2, 0, 1, 3).reshape(-1, k.shape[-1])  # (c, dy, dx)
+    hist_part = sampling.pixel_unshuffle(x.hist.astype(dt), DOWN) @ k_h.astype(dt)
+    return zero_part + hist_part + b.astype(dt)
 
 
-def network(params, x, config: Config):
-    """``x [B,H,W,8]`` -> ``[B,H/4,W/4,32]`` in the compute dtype (before the shuffle)."""
+def network(params, x: NetInput, config: Config):
+    """The network on ``concat(zero_upsample(x.lr), x.hist)`` -> ``[B,H/4,W/4,32]`` in
+    the compute dtype (before the shuffle)."""
     dt = compute_dtype(config.dtype)
     params = jax.tree_util.tree_map(lambda p: p.astype(dt), params)
-    return _trunk(params, _down(params, x.astype(dt), config), config)
+    return _trunk(params, _down(params, x, config, dt), config)
 
 
 def _construct(jau, hist, o1, o2, config, axis):
@@ -168,29 +197,36 @@ def _output(jau, hist, net, config):
 
 
 def prepare(state: State, frame: Frame, config: Config):
-    """Stages 1-2: ``(net_input [B,H,W,8], jau [B,H,W,4], hist [B,H,W,4])``, float32."""
+    """Stages 1-2: ``(NetInput, jau [B,H,W,4], hist [B,H,W,4])``, float32; the
+    zero-up-sampled half of the network input is built (or not: ``opt2``) by
+    ``network``."""
     f = config.factor
     color, depth, motion, jitter = _cast(frame, config)
     b, h, w, _ = color.shape
-    zero = sampling.zero_upsample(
-        jnp.concatenate([color, linearize_depth(depth, config.near, config.far)], -1),
-        jitter, f)
-    jau = _jau(config, color, jitter)
-    history = state.history
-    if frame.reset is not None:
-        history = jnp.where(frame.reset[:, None, None, None], jau, history)
-    if not config.accumulation:
-        history = history.at[..., 3].set(1.0)
-    mv = sampling.dilate_motion(motion, depth) if config.dilation else motion
-    xy = sampling.pixel_grid(b, h * f, w * f, mv.dtype) + f * sampling.upsample(mv, f)
-    rep, inside = sampling.sample(history, xy, config.warp, a=config.warp_a, return_mask=True)
-    hist = jnp.where(inside, rep, jau)
-    return jnp.concatenate([zero, hist], -1), jau, hist
+    # The named scopes label the HLO for profiles (python -m jtus.profile).
+    with jax.named_scope("input_upsampling"):
+        lr = jnp.concatenate([color, linearize_depth(depth, config.near, config.far)], -1)
+        jau = _jau(config, color, jitter)
+    with jax.named_scope("reprojection"):
+        history = state.history
+        if frame.reset is not None:
+            history = jnp.where(frame.reset[:, None, None, None], jau, history)
+        if not config.accumulation:
+            history = history.at[..., 3].set(1.0)
+        mv = sampling.dilate_motion(motion, depth) if config.dilation else motion
+        xy = sampling.pixel_grid(b, h * f, w * f, mv.dtype) + f * sampling.upsample(mv, f)
+        rep, inside = sampling.sample(history, xy, config.warp, a=config.warp_a,
+                                      return_mask=True)
+        hist = jnp.where(inside, rep, jau)
+    return NetInput(lr, jitter, hist), jau, hist
 
 
 def step(params, state: State, frame: Frame, config: Config = Config()):
     net_in, jau, hist = prepare(state, frame, config)
-    out = _output(jau, hist, network(params, net_in, config), config)
+    with jax.named_scope("network"):
+        net = network(params, net_in, config)
+    with jax.named_scope("output"):
+        out = _output(jau, hist, net, config)
     return out[..., :3], State(out)
 
 

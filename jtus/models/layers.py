@@ -51,41 +51,43 @@ def _edge_pad_adjoint(g, p):
     return out.at[:, :, -1:].add(inner[:, :, p + w:].sum(2, keepdims=True))
 
 
-def _patches(xp, k, h, w):
-    """im2col of the padded input: ``[B*H*W, k*k*C]`` in HWIO order (ky, kx, c)."""
-    cols = [xp[:, dy:dy + h, dx:dx + w] for dy in range(k) for dx in range(k)]
-    return jnp.concatenate(cols, -1).reshape(-1, k * k * xp.shape[-1])
-
-
 @jax.custom_vjp
 def conv_edge_fast(x, kernel, bias):
     """``conv_edge`` with a backward pass made of standard-layout ops only.
 
     On XLA:CPU the autodiff backward of a convolution inside a rolled ``lax.scan``
     falls back to a slow path (``../shared/FINDINGS.md``). Here the kernel gradient
-    is an im2col matmul and the input gradient a SAME convolution with the flipped,
-    transposed kernel followed by the adjoint of the edge padding. Values and
-    gradients equal ``conv_edge``'s (tested in float64).
+    is one small matmul per kernel tap (``x`` shifted by the tap, transposed, times
+    the output gradient), and the input gradient a SAME convolution with the flipped,
+    transposed kernel followed by the adjoint of the edge padding. The padded input is
+    the saved residual, so the backward does not pad again. Values and gradients equal
+    ``conv_edge``'s (tested in float64). One matmul per tap replaced an im2col
+    concatenation that took about a tenth of a training step (docs/performance.md).
     """
     return conv_edge(x, kernel, bias)
 
 
 def _fast_fwd(x, kernel, bias):
-    return conv_edge(x, kernel, bias), (x, kernel)
+    p = (kernel.shape[0] - 1) // 2
+    xp = jnp.pad(x, ((0, 0), (p, p), (p, p), (0, 0)), mode="edge")
+    y = conv(xp, kernel, bias)
+    return (y[:, p:-p, p:-p, :] if p else y), (xp, kernel)
 
 
 def _fast_bwd(res, g):
-    x, kernel = res
+    xp, kernel = res
     k = kernel.shape[0]
     p = (k - 1) // 2
-    b, h, w, c = x.shape
-    xp = jnp.pad(x, ((0, 0), (p, p), (p, p), (0, 0)), mode="edge")
-    dk = (_patches(xp, k, h, w).T @ g.reshape(-1, g.shape[-1])).reshape(kernel.shape)
+    h, w = g.shape[1:3]
+    c = xp.shape[-1]
+    g2 = g.reshape(-1, g.shape[-1])
+    dk = jnp.stack([xp[:, dy:dy + h, dx:dx + w].reshape(-1, c).T @ g2
+                    for dy in range(k) for dx in range(k)]).reshape(kernel.shape)
     flipped = jnp.flip(kernel, (0, 1)).transpose(0, 1, 3, 2)
     gp = jnp.pad(g, ((0, 0), (p, p), (p, p), (0, 0)))
     dxp = conv(gp, flipped.astype(g.dtype))  # gradient w.r.t. the padded input
-    dx = _edge_pad_adjoint(dxp, p)
-    return dx.astype(x.dtype), dk.astype(kernel.dtype), g.sum((0, 1, 2)).astype(kernel.dtype)
+    dx = _edge_pad_adjoint(dxp, p) if p else dxp
+    return dx.astype(xp.dtype), dk.astype(kernel.dtype), g.sum((0, 1, 2)).astype(kernel.dtype)
 
 
 conv_edge_fast.defvjp(_fast_fwd, _fast_bwd)

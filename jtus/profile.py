@@ -1,0 +1,217 @@
+"""``python -m jtus.profile``: where a DLCTUS step spends its time, per XLA op.
+
+    python -m jtus.profile                                  # the bench's training step
+    python -m jtus.profile --what infer --size 1080p --factor 4
+    python -m jtus.profile --out docs/profile-train-cpu      # also writes .json and .md
+
+The step is the bench's workload (``jtus.bench.train_workload`` / ``infer_workload``),
+jitted and warm. A few steps are traced; every XLA op the trace shows (a *thunk* on
+XLA:CPU) is matched by name to its instruction in the compiled module, whose metadata
+says which JAX code made it. Ops are then summed by
+
+- **stage**: the named scope of ``jtus.models.dlctus.step`` they come from
+  (``input_upsampling``, ``reprojection``, ``network``, ``output``), the loss and the
+  optimizer (scopes in ``jtus.rollout`` and ``jtus.train``), or ``other`` (the scan's
+  own bookkeeping: stacking residuals, copies, loop control);
+- **pass**: ``forward`` or ``backward`` (ops made by transposition);
+- **kind**: convolution, matmul, gather, scatter, concatenate, copy/slice, elementwise
+  fusion, reduction, other.
+
+Times are op times summed over the threads XLA runs ops on, per step, so they add up to
+more than the wall time on a 2-core machine; the shares are what to read. The wall time
+of the same steps, untraced, is printed beside them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import glob
+import json
+import os
+import re
+import sys
+import tempfile
+import time
+
+import jax
+
+from jtus import bench, sampling
+
+STAGES = ("input_upsampling", "reprojection", "network", "output", "loss", "optimizer")
+_INSTR = re.compile(r"\s*(?:ROOT )?%?([\w.\-]+) = .*? ([a-z][\w\-]*)\(")
+_OPNAME = re.compile(r'op_name="([^"]+)"')
+_CONTAINERS = {"while", "call", "conditional"}
+
+
+def hlo_ops(text):
+    """``{instruction name: (opcode, op_name metadata)}`` from a compiled module's text."""
+    out = {}
+    for line in text.splitlines():
+        m = _INSTR.match(line)
+        if m:
+            on = _OPNAME.search(line)
+            out[m.group(1)] = (m.group(2), on.group(1) if on else "")
+    return out
+
+
+def classify(name, opcode, op_name):
+    """(stage, pass, kind) of one op."""
+    stage = next((s for s in STAGES if f"/{s}/" in op_name or op_name.endswith("/" + s)),
+                 "other")
+    pass_ = "backward" if "transpose(" in op_name else "forward"
+    if "conv_general_dilated" in op_name and opcode in ("fusion", "convolution", "custom-call"):
+        kind = "convolution"
+    elif opcode == "dot" or op_name.endswith("/dot_general"):
+        kind = "matmul"
+    elif opcode in ("gather", "scatter", "concatenate"):
+        kind = opcode
+    elif op_name.endswith("/gather") or "gather" in name:
+        kind = "gather"
+    elif op_name.endswith(("/scatter-add", "/scatter_add")) or "scatter" in name:
+        kind = "scatter"
+    elif opcode in ("copy", "dynamic-update-slice", "dynamic-slice", "slice", "bitcast",
+                    "transpose") or name.startswith(("copy", "wrapped_slice",
+                                                     "dynamic-update-slice", "wrapped_transpose")):
+        kind = "copy/slice"
+    elif name.startswith("ynn_fusion"):
+        kind = "reduction"  # YNNPACK runs reductions too
+    elif opcode == "fusion":
+        kind = "elementwise fusion"
+    else:
+        kind = "other"
+    return stage, pass_, kind
+
+
+def trace_ops(run, hlo_text, steps, logdir):
+    """Trace ``steps`` calls of ``run``; returns ``{op name: total ns}`` of the leaf ops
+    found in ``hlo_text`` and the number of op events that matched nothing."""
+    jax.profiler.start_trace(logdir)
+    for _ in range(steps):
+        run()
+    jax.profiler.stop_trace()
+    files = sorted(glob.glob(os.path.join(logdir, "**", "*.xplane.pb"), recursive=True),
+                   key=os.path.getmtime)
+    if not files:
+        raise RuntimeError(f"{logdir}: the profiler wrote no .xplane.pb")
+    ops = hlo_ops(hlo_text)
+    data = jax.profiler.ProfileData.from_file(files[-1])
+    totals, unmatched = collections.Counter(), 0
+    for plane in data.planes:
+        for line in plane.lines:
+            if line.name == "python":
+                continue
+            for ev in line.events:
+                info = ops.get(ev.name)
+                if info is None:
+                    unmatched += ev.name.startswith("ThunkExecutor") is False
+                    continue
+                if info[0] in _CONTAINERS:
+                    continue  # a loop's span contains its body's ops
+                totals[ev.name] += ev.duration_ns
+    return totals, ops, unmatched
+
+
+def summarize(totals, ops, steps):
+    by = {k: collections.Counter() for k in ("stage", "pass", "kind", "stage_pass", "stage_kind")}
+    top = []
+    for name, ns in totals.items():
+        opcode, op_name = ops[name]
+        stage, pass_, kind = classify(name, opcode, op_name)
+        ms = ns / 1e6 / steps
+        by["stage"][stage] += ms
+        by["pass"][pass_] += ms
+        by["kind"][kind] += ms
+        by["stage_pass"][f"{stage}/{pass_}"] += ms
+        by["stage_kind"][f"{stage}/{pass_}/{kind}"] += ms
+        top.append((ms, name, stage, pass_, kind, op_name))
+    top.sort(reverse=True)
+    return {"op_ms_per_step": sum(by["stage"].values()),
+            **{k: dict(v.most_common()) for k, v in by.items()},
+            "top_ops": [dict(ms=m, op=n, stage=s, pass_=p, kind=k, op_name=o)
+                        for m, n, s, p, k, o in top[:25]]}
+
+
+def profile(run, hlo_text, steps=3):
+    """Time ``run`` (warm) ``steps`` times, then trace it as many times; returns
+    ``{"steps", "wall_ms" (median, untraced), "unmatched_events", "summary"}``."""
+    walls = []
+    for _ in range(steps):
+        t0 = time.perf_counter()
+        run()
+        walls.append(time.perf_counter() - t0)
+    with tempfile.TemporaryDirectory() as logdir:
+        totals, ops, unmatched = trace_ops(run, hlo_text, steps, logdir)
+    if not totals:
+        raise RuntimeError("the trace held no XLA ops that match the compiled module")
+    walls.sort()
+    return {"steps": steps, "wall_ms": 1e3 * walls[len(walls) // 2],
+            "unmatched_events": unmatched, "summary": summarize(totals, ops, steps)}
+
+
+def markdown(report):
+    s = report["summary"]
+    total = s["op_ms_per_step"]
+    lines = [f"Profile of {report['workload']} ({report['hardware']['cpu']}, "
+             f"{report['hardware']['cores']} cores, JAX {report['hardware']['jax']}).",
+             f"Command: `{report['command']}`", "",
+             f"Wall time {report['wall_ms']:.1f} ms per step (untraced, median of "
+             f"{report['steps']}); op time summed over threads {total:.1f} ms per step.", "",
+             "| stage | forward ms | backward ms | share of op time |",
+             "| --- | --- | --- | --- |"]
+    for stage in STAGES + ("other",):
+        f = s["stage_pass"].get(f"{stage}/forward", 0.0)
+        b = s["stage_pass"].get(f"{stage}/backward", 0.0)
+        if f or b:
+            lines.append(f"| {stage} | {f:.1f} | {b:.1f} | {100 * (f + b) / total:.0f}% |")
+    lines += ["", "| kind of op | ms | share |", "| --- | --- | --- |"]
+    lines += [f"| {k} | {v:.1f} | {100 * v / total:.0f}% |" for k, v in s["kind"].items()]
+    lines += ["", "Largest stage/pass/kind groups:", "",
+              "| stage / pass / kind | ms | share |", "| --- | --- | --- |"]
+    lines += [f"| {k} | {v:.1f} | {100 * v / total:.0f}% |"
+              for k, v in list(s["stage_kind"].items())[:12]]
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    argv = list(sys.argv[1:] if argv is None else argv)
+    p = argparse.ArgumentParser(prog="python -m jtus.profile", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--what", choices=("train", "infer"), default="train")
+    p.add_argument("--factor", type=int, default=2)
+    p.add_argument("--size", choices=tuple(bench.SIZES), default="1080p", help="inference")
+    p.add_argument("--crop", type=int, default=128)
+    p.add_argument("--batch", type=int, default=4)
+    p.add_argument("--seq", type=int, default=8)
+    p.add_argument("--loss-frames", type=int, default=5)
+    p.add_argument("--warp", default="bicubic", choices=sampling.METHODS)
+    p.add_argument("--steps", type=int, default=3, help="steps traced and timed")
+    p.add_argument("--out", help="write OUT.json and OUT.md")
+    args = p.parse_args(argv)
+
+    if args.what == "train":
+        run, hlo, _ = bench.train_workload(args.factor, args.crop, args.batch, args.seq,
+                                           args.loss_frames, warp=args.warp)
+        workload = (f"the DLCTUS {args.factor}x training step (crop {args.crop}, batch "
+                    f"{args.batch}, {args.seq} frames, loss on the last {args.loss_frames}, "
+                    f"{args.warp} warp, Adam)")
+    else:
+        run, hlo, *_ = bench.infer_workload("dlctus", args.factor, bench.SIZES[args.size],
+                                            warp=args.warp)
+        workload = f"one DLCTUS {args.factor}x inference step at {args.size} ({args.warp} warp)"
+    run()  # compile
+    report = {"hardware": bench.hardware(), "workload": workload,
+              "command": "python -m jtus.profile " + " ".join(argv),
+              **profile(run, hlo(), args.steps)}
+    md = markdown(report)
+    if args.out:
+        with open(args.out + ".json", "w") as fh:
+            json.dump(report, fh, indent=1)
+        with open(args.out + ".md", "w") as fh:
+            fh.write(md + "\n")
+    print(md)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
