@@ -17,9 +17,11 @@ says which JAX code made it. Ops are then summed by
 - **kind**: convolution, matmul, gather, scatter, concatenate, copy/slice, elementwise
   fusion, reduction, other.
 
-Times are op times summed over the threads XLA runs ops on, per step, so they add up to
-more than the wall time on a 2-core machine; the shares are what to read. The wall time
-of the same steps, untraced, is printed beside them.
+Each op's time is its span on the thread that ran it: the op's wall time, during which
+its own worker threads (YNNPACK, Eigen) may help it. XLA:CPU mostly runs one op at a
+time here, so the spans add up to about the step's wall time (printed beside them,
+measured untraced); where independent ops overlap the sum is larger. Ops that XLA
+launches asynchronously can show less than they take; read shares, not single ops.
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ import time
 
 import jax
 
-from jtus import bench, sampling
+from jtus import bench, models, sampling
 
 STAGES = ("input_upsampling", "reprojection", "network", "output", "loss", "optimizer")
 _INSTR = re.compile(r"\s*(?:ROOT )?%?([\w.\-]+) = .*? ([a-z][\w\-]*)\(")
@@ -156,8 +158,8 @@ def markdown(report):
              f"{report['hardware']['cores']} cores, JAX {report['hardware']['jax']}).",
              f"Command: `{report['command']}`", "",
              f"Wall time {report['wall_ms']:.1f} ms per step (untraced, median of "
-             f"{report['steps']}); op time summed over threads {total:.1f} ms per step.", "",
-             "| stage | forward ms | backward ms | share of op time |",
+             f"{report['steps']}); op spans summed {total:.1f} ms per step.", "",
+             "| stage | forward ms | backward ms | share |",
              "| --- | --- | --- | --- |"]
     for stage in STAGES + ("other",):
         f = s["stage_pass"].get(f"{stage}/forward", 0.0)
@@ -178,6 +180,8 @@ def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m jtus.profile", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--what", choices=("train", "infer"), default="train")
+    p.add_argument("--model", default="dlctus", choices=models.NAMES,
+                   help="inference: any model (training profiles DLCTUS)")
     p.add_argument("--factor", type=int, default=2)
     p.add_argument("--size", choices=tuple(bench.SIZES), default="1080p", help="inference")
     p.add_argument("--crop", type=int, default=128)
@@ -196,9 +200,11 @@ def main(argv=None):
                     f"{args.batch}, {args.seq} frames, loss on the last {args.loss_frames}, "
                     f"{args.warp} warp, Adam)")
     else:
-        run, hlo, *_ = bench.infer_workload("dlctus", args.factor, bench.SIZES[args.size],
-                                            warp=args.warp)
-        workload = f"one DLCTUS {args.factor}x inference step at {args.size} ({args.warp} warp)"
+        over = {"warp": args.warp} if args.model == "dlctus" else {}
+        run, hlo, *_ = bench.infer_workload(args.model, args.factor, bench.SIZES[args.size],
+                                            **over)
+        workload = (f"one {args.model.upper()} {args.factor}x inference step at {args.size}"
+                    + (f" ({args.warp} warp)" if over else ""))
     run()  # compile
     report = {"hardware": bench.hardware(), "workload": workload,
               "command": "python -m jtus.profile " + " ".join(argv),

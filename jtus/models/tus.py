@@ -175,10 +175,14 @@ def step(params, state: State, frame: Frame, config: Config = Config()):
         history = jnp.where(frame.reset[:, None, None, None], fresh, history)
     mv = sampling.dilate_motion(motion, depth) if config.dilation else motion
     pos = sampling.pixel_grid(b, h * f, w * f) + f * sampling.upsample(mv, f)
-    rep, inside = sampling.sample(history, pos, config.warp, a=config.warp_a, return_mask=True)
-    hist = jnp.where(inside, rep, fresh)
-    rgb = _rectify(config, hist[..., :3], color, xy)
-    count = hist[..., 3:] + 1.0
+    # Colour and count are read by separate warps (the same values): XLA:CPU splits one
+    # 16-tap read whose result feeds two consumers into per-tap gathers several times
+    # slower than the whole read (docs/performance.md).
+    rep, inside = sampling.sample(history[..., :3], pos, config.warp, a=config.warp_a,
+                                  return_mask=True)
+    rgb = _rectify(config, jnp.where(inside, rep, fresh[..., :3]), color, xy)
+    rep_count = sampling.sample(history[..., 3:], pos, config.warp, a=config.warp_a)
+    count = jnp.where(inside, rep_count, 1.0) + 1.0
     alpha = jnp.maximum(1.0 / count, config.alpha) if config.inverse_count else config.alpha
     ab = alpha * _beta(config, frame, beta_max)
     out = ab * s + (1 - ab) * rgb

@@ -100,14 +100,17 @@ def _bilinear_phases(x, factor, wx, wy):
     dense too (no scatter-add)."""
     b, h, w, c = x.shape
     wx, wy = wx.astype(x.dtype), wy.astype(x.dtype)
-    p = jnp.pad(x, ((0, 0), (0, 0), (1, 1), (0, 0)), mode="edge")
-    taps = [p[:, :, 1 + k:1 + k + w] for k in (-1, 0, 1)]
-    cols = jnp.stack([sum(taps[k] * wx[:, None, None, None, ph, k] for k in range(3))
-                      for ph in range(factor)], 3).reshape(b, h, w * factor, c)
-    q = jnp.pad(cols, ((0, 0), (1, 1), (0, 0), (0, 0)), mode="edge")
-    taps = [q[:, 1 + k:1 + k + h] for k in (-1, 0, 1)]
-    out = jnp.stack([sum(taps[k] * wy[:, None, None, None, ph, k] for k in range(3))
-                     for ph in range(factor)], 2)
+    # One fusion writing [B,h,f,w,f,C] (row-major, so the HR image is a reshape): every
+    # tap is a broadcast slice of the edge-padded LR image. Stacking per-phase results
+    # instead made XLA:CPU materialize them through slow concatenations.
+    p = jnp.pad(x, ((0, 0), (1, 1), (1, 1), (0, 0)), mode="edge")
+    out = 0
+    for ky in range(3):
+        row = 0
+        for kx in range(3):
+            tap = p[:, ky:ky + h, None, kx:kx + w, None, :]  # [B,h,1,w,1,C]
+            row = row + tap * wx[:, None, None, None, :, kx, None]
+        out = out + row * wy[:, None, :, None, None, ky, None]
     return out.reshape(b, h * factor, w * factor, c)
 
 

@@ -35,8 +35,15 @@ def _check(image, xy):
 
 
 def _gather(image, iy, ix):
-    """image [B,H,W,C]; integer iy, ix [B,...] (already clamped) -> [B,...,C]."""
-    return jax.vmap(lambda im, y, x: im[y, x])(image, iy, ix)
+    """image [B,H,W,C]; integer iy, ix [B,...] (already clamped) -> [B,...,C].
+
+    Read through one scalar index into the flattened image: the batched form
+    (``vmap`` of ``image[y, x]``) builds a (batch, y, x) index vector per element,
+    which XLA:CPU materializes through slow concatenations wherever the indices are
+    shared between reads (TUS's step was several times slower for it)."""
+    b, h, w, c = image.shape
+    batch = jnp.arange(b).reshape((b,) + (1,) * (iy.ndim - 1))
+    return image.reshape(b * h * w, c)[(batch * h + iy) * w + ix]
 
 
 def _taps(i0, n, size):
@@ -65,8 +72,8 @@ def _all_taps(image, iy0, ix0, wy, wx):
     ``ny * nx`` flat indices and weights itself (saving those per frame in a scan
     cost more than rebuilding them)."""
     b, h, w, c = image.shape
-    iy = jnp.stack(_taps(iy0, wy.shape[-1], h), -1)
-    ix = jnp.stack(_taps(ix0, wx.shape[-1], w), -1)
+    iy = jnp.clip(iy0[..., None] + jnp.arange(wy.shape[-1]), 0, h - 1)  # [B,...,ny]
+    ix = jnp.clip(ix0[..., None] + jnp.arange(wx.shape[-1]), 0, w - 1)
     batch = jnp.arange(b).reshape((b,) + (1,) * (iy.ndim - 1))
     idx = (batch * h + iy)[..., :, None] * w + ix[..., None, :]  # [B,...,ny,nx]
     weights = (wy[..., :, None] * wx[..., None, :])[..., None]
