@@ -10,7 +10,9 @@ until ready, and the median of ``--repeats`` runs. The peak is a large float32 m
 and two convolutions (DLCTUS's own 3x3 32->32 layer at the 1080p network size, and a
 3x3 64->64 one), timed in the same run, so ratios are taken side by side on a noisy
 machine. The PyTorch reference (``tests/torch_dlctus.py``, needs ``torch`` and a
-source checkout) runs the same workloads; ratios are torch time / jtus time.
+source checkout) runs the same workloads, each repeat alternating with jtus's
+(``timeit_pair``), so both medians come from the same minutes of a noisy machine;
+ratios are torch time / jtus time.
 """
 
 from __future__ import annotations
@@ -55,6 +57,21 @@ def timeit(fn, repeats=5):
         fn()
         ts.append(time.perf_counter() - t0)
     return float(np.median(ts))
+
+
+def timeit_pair(fa, fb, repeats=5):
+    """Median seconds of ``fa()`` and of ``fb()``, timed alternately (a, b, a, b, ...)
+    after one warm-up call each, so that both see the same machine: on a shared,
+    noisy machine their ratio is then steadier than that of two separate medians."""
+    fa()
+    fb()
+    ta, tb = [], []
+    for _ in range(repeats):
+        for fn, ts in ((fa, ta), (fb, tb)):
+            t0 = time.perf_counter()
+            fn()
+            ts.append(time.perf_counter() - t0)
+    return float(np.median(ta)), float(np.median(tb))
 
 
 def peaks(repeats):
@@ -107,17 +124,24 @@ def infer_workload(name, factor, size, dtype="float32", **overrides):
     return run, hlo, model, params, state, frame
 
 
-def bench_infer(name, factor, size, repeats, dtype="float32", **overrides):
+def bench_infer(name, factor, size, repeats, dtype="float32", against=None, **overrides):
+    """One model's inference timing record. ``against``: a blocking callable (the
+    PyTorch reference's step) timed alternately with jtus's (``timeit_pair``)."""
     from jtus import cost
     from jtus.models import dlctus
 
     H, W = size
     run, _, model, params, state, frame = infer_workload(name, factor, size, dtype, **overrides)
-    seconds = timeit(run, repeats)
     c = cost.cost(name, model.config, H, W)
+    if against is None:
+        seconds = timeit(run, repeats)
+    else:
+        seconds, other = timeit_pair(run, against, repeats)
     rec = {"model": name, "factor": factor, "size": f"{H}x{W}", "dtype": dtype, **overrides,
            "ms": seconds * 1e3, "gflop": c.flops / 1e9, "gflops": c.flops / seconds / 1e9,
            "mbytes": c.bytes / 1e6}
+    if against is not None:
+        rec.update(torch_ms=other * 1e3, torch_over_jtus=other / seconds)
     if name == "dlctus":
         net_in, _, _ = dlctus.prepare(state[0], frame, model.config)
         net = jax.jit(lambda p, x: dlctus.network(p, x, model.config))
@@ -163,7 +187,8 @@ def train_workload(factor, crop, batch, seq, loss_frames, remat=False, unroll=1,
 
 
 def bench_train(factor, crop, batch, seq, loss_frames, repeats, remat=False, unroll=1,
-                conv_backward="custom", warp="bicubic"):
+                conv_backward="custom", warp="bicubic", against=None):
+    """The training-step timing record; ``against`` as in ``bench_infer``."""
     from jtus import cost
 
     run, _, model = train_workload(factor, crop, batch, seq, loss_frames, remat, unroll,
@@ -172,10 +197,14 @@ def bench_train(factor, crop, batch, seq, loss_frames, repeats, remat=False, unr
     # its two backward products (input and kernel gradients), each as costly as the
     # forward: at least 3x the forward FLOPs of every frame (BPTT reaches all of them)
     fwd = cost.cost("dlctus", model.config, crop, crop).flops * batch * seq
-    return {"factor": factor, "crop": crop, "batch": batch, "seq": seq, "loss_frames": loss_frames,
-            "gflop_per_step": 3 * fwd / 1e9,
-            "remat": remat, "unroll": bool(unroll is True), "conv_backward": conv_backward,
-            "warp": warp, "s_per_step": timeit(run, repeats)}
+    rec = {"factor": factor, "crop": crop, "batch": batch, "seq": seq, "loss_frames": loss_frames,
+           "gflop_per_step": 3 * fwd / 1e9,
+           "remat": remat, "unroll": bool(unroll is True), "conv_backward": conv_backward,
+           "warp": warp}
+    if against is None:
+        return dict(rec, s_per_step=timeit(run, repeats))
+    seconds, other = timeit_pair(run, against, repeats)
+    return dict(rec, s_per_step=seconds, torch_s_per_step=other, torch_over_jtus=other / seconds)
 
 
 def _torch():
@@ -189,7 +218,9 @@ def _torch():
     return torch, torch_dlctus
 
 
-def torch_infer(factor, size, repeats):
+def torch_infer(factor, size):
+    """The PyTorch reference's inference step as a blocking callable (None without
+    torch)."""
     torch, ref = _torch()
     if torch is None:
         return None
@@ -208,10 +239,11 @@ def torch_infer(factor, size, repeats):
         with torch.no_grad():
             _, hist[0] = ref.step(net, hist[0], color, depth, motion, jitter, factor)
 
-    return timeit(run, repeats)
+    return run
 
 
-def torch_train(factor, crop, batch, seq, loss_frames, repeats):
+def torch_train(factor, crop, batch, seq, loss_frames):
+    """The PyTorch reference's training step as a callable (None without torch)."""
     torch, ref = _torch()
     if torch is None:
         return None
@@ -236,7 +268,7 @@ def torch_train(factor, crop, batch, seq, loss_frames, repeats):
         (loss / loss_frames).backward()
         opt.step()
 
-    return timeit(run, repeats)
+    return run
 
 
 def run(args):
@@ -252,31 +284,28 @@ def run(args):
                                 if name == "dlctus" else [("float32", None)])
                     for dt, fm in variants:
                         over = {"formulation": fm} if fm else {}
-                        rec = bench_infer(name, f, SIZES[size], args.repeats, dt, **over)
+                        against = None
                         if (name == "dlctus" and dt == "float32" and fm == args.formulations[0]
                                 and args.torch):
-                            ts = torch_infer(f, SIZES[size], args.repeats)
-                            if ts is not None:
-                                rec.update(torch_ms=ts * 1e3, torch_over_jtus=ts * 1e3 / rec["ms"])
+                            against = torch_infer(f, SIZES[size])
+                        rec = bench_infer(name, f, SIZES[size], args.repeats, dt, against=against,
+                                          **over)
                         rows.append(rec)
                         _progress(rec)
         report["infer"] = rows
     if "train" in args.what:
         rows = []
+        against = (torch_train(args.factors[0], args.train_crop, args.train_batch,
+                               args.train_seq, args.train_loss_frames) if args.torch else None)
         for warp in args.train_warps:
             rec = bench_train(args.factors[0], args.train_crop, args.train_batch, args.train_seq,
                               args.train_loss_frames, args.repeats, remat=args.train_remat,
                               unroll=True if args.train_unroll else 1,
-                              conv_backward=args.train_conv_backward, warp=warp)
+                              conv_backward=args.train_conv_backward, warp=warp,
+                              against=against)
             _progress(rec)
             rows.append(rec)
         rec = rows[0]
-        if args.torch:
-            ts = torch_train(args.factors[0], args.train_crop, args.train_batch, args.train_seq,
-                             args.train_loss_frames, args.repeats)
-            if ts is not None:
-                for r in rows:
-                    r.update(torch_s_per_step=ts, torch_over_jtus=ts / r["s_per_step"])
         peak = report.get("peak", {}).get("conv_dlctus_gflops")
         if peak:
             for r in rows:
@@ -284,7 +313,6 @@ def run(args):
         report["train"] = rec
         if len(rows) > 1:
             report["train_warps"] = rows
-        _progress(rec)
     return report
 
 
@@ -336,8 +364,10 @@ def markdown(report):
                           f"that bound and jtus's "
                           f"{r['s_per_step'] / r['bound_s_at_conv_peak']:.2f}x."]
     if "train_warps" in report:
-        lines += ["", "| reprojection warp | jtus s/step | torch/jtus |", "| --- | --- | --- |"]
+        lines += ["", "| reprojection warp | jtus s/step | PyTorch s/step (timed alongside) | "
+                      "torch/jtus |", "| --- | --- | --- | --- |"]
         lines += [f"| {r['warp']} | {r['s_per_step']:.3f} | "
+                  f"{r.get('torch_s_per_step', float('nan')):.3f} | "
                   f"{r.get('torch_over_jtus', float('nan')):.2f} |" for r in report["train_warps"]]
     return "\n".join(lines)
 
