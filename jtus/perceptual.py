@@ -45,18 +45,18 @@ def load_vgg16(path: str) -> dict:
         raise FileNotFoundError(f"perceptual weights: no file {path!r} (an .npz of "
                                 "torchvision vgg16().features, see jtus/perceptual.py)")
     try:
-        data = np.load(path)
-        keys = set(data.files)
+        with np.load(path) as data:
+            arrays = {k: data[k] for k in data.files}
     except Exception as e:  # noqa: BLE001  zip/pickle errors of a corrupt file
         raise ValueError(f"perceptual weights: {path!r} is not a readable .npz ({e})") from e
     params = {}
     for i, (cin, cout) in _WIDTHS.items():
         wk, bk = f"features.{i}.weight", f"features.{i}.bias"
         for k in (wk, bk):
-            if k not in keys:
+            if k not in arrays:
                 raise ValueError(f"perceptual weights: {path!r} lacks {k!r} "
                                  f"(expected torchvision vgg16().features names)")
-        w, b = data[wk], data[bk]
+        w, b = arrays[wk], arrays[bk]
         if w.shape != (cout, cin, 3, 3) or b.shape != (cout,):
             raise ValueError(f"perceptual weights: {wk} has shape {w.shape} and {bk} "
                              f"{b.shape}; expected {(cout, cin, 3, 3)} and {(cout,)}")

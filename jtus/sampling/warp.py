@@ -122,13 +122,27 @@ def keys_weights(t, a):
     ``t`` in [0, 1) is the distance from tap 0. ``a = -0.5`` is Catmull-Rom,
     ``a = -0.75`` PyTorch's bicubic. Returns a tuple of four arrays like ``t``.
     """
-    def near(d):  # |d| <= 1
-        return ((a + 2) * d - (a + 3)) * d * d + 1
+    return _far(t + 1, a), _near(t, a), _near(1 - t, a), _far(2 - t, a)
 
-    def far(d):  # 1 < |d| < 2
-        return ((a * d - 5 * a) * d + 8 * a) * d - 4 * a
 
-    return far(t + 1), near(t), near(1 - t), far(2 - t)
+def _near(d, a):  # the Keys kernel at |d| <= 1
+    return ((a + 2) * d - (a + 3)) * d * d + 1
+
+
+def _far(d, a):  # ... and at 1 < |d| < 2
+    return ((a * d - 5 * a) * d + 8 * a) * d - 4 * a
+
+
+def _tap_weights(t, n, a=None):
+    """``t [...,1]`` (the fractional part) -> ``[...,n]`` weights of the taps at
+    offsets 0, 1 (``n = 2``, linear) or -1, 0, 1, 2 (``n = 4``, Keys ``a``). Built by
+    broadcasting, not concatenation (which XLA:CPU fuses badly); the values are
+    ``keys_weights``'s bit for bit: ``|t - k|`` is exactly ``t + 1, t, 1 - t, 2 - t``."""
+    if n == 2:
+        return jnp.where(jnp.arange(2) == 0, 1 - t, t)
+    k = jnp.arange(-1, 3)
+    d = jnp.abs(t - k.astype(t.dtype))
+    return jnp.where((k == 0) | (k == 1), _near(d, a), _far(d, a))
 
 
 def _split(xy):
@@ -144,18 +158,23 @@ def _nearest(image, xy):
     return _separable(image, i0[..., 1], i0[..., 0], one, one)  # one tap of weight 1
 
 
+def _bilinear_at(image, x, y):
+    """Bilinear read at pixel coordinates ``x, y [...,1]``."""
+    ix, tx = _split(x)
+    iy, ty = _split(y)
+    return _separable(image, iy[..., 0], ix[..., 0], _tap_weights(ty.astype(image.dtype), 2),
+                      _tap_weights(tx.astype(image.dtype), 2))
+
+
 def _bilinear(image, xy):
-    i0, t = _split(xy)
-    tx, ty = t[..., 0:1].astype(image.dtype), t[..., 1:2].astype(image.dtype)
-    return _separable(image, i0[..., 1], i0[..., 0], jnp.concatenate([1 - ty, ty], -1),
-                      jnp.concatenate([1 - tx, tx], -1))
+    return _bilinear_at(image, xy[..., 0:1], xy[..., 1:2])
 
 
 def _bicubic(image, xy, a):
     """The 16-tap separable Keys kernel, x first then y (PyTorch's order)."""
     i0, t = _split(xy)
-    wx = jnp.concatenate(keys_weights(t[..., 0:1].astype(image.dtype), a), -1)
-    wy = jnp.concatenate(keys_weights(t[..., 1:2].astype(image.dtype), a), -1)
+    wx = _tap_weights(t[..., 0:1].astype(image.dtype), 4, a)
+    wy = _tap_weights(t[..., 1:2].astype(image.dtype), 4, a)
     return _separable(image, i0[..., 1] - 1, i0[..., 0] - 1, wy, wx)
 
 
@@ -180,7 +199,7 @@ def _bicubic9(image, xy, a):
     out = 0
     for y, wyk in zip(py, wy):
         for x, wxk in zip(px, wx):
-            out = out + _bilinear(image, jnp.stack([x, y], -1)) * (wxk * wyk)[..., None]
+            out = out + _bilinear_at(image, x[..., None], y[..., None]) * (wxk * wyk)[..., None]
     return out
 
 
@@ -194,7 +213,7 @@ def _bicubic5(image, xy, a):
     out, total = 0, 0
     for jx, jy in taps:
         wk = wx[jx] * wy[jy]
-        out = out + _bilinear(image, jnp.stack([px[jx], py[jy]], -1)) * wk[..., None]
+        out = out + _bilinear_at(image, px[jx][..., None], py[jy][..., None]) * wk[..., None]
         total = total + wk
     return out / total[..., None]
 
