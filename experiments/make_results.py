@@ -46,11 +46,12 @@ RUNS = {
 NOTES = {
     "pareto": "Reading the ablation rows: a network whose clamped outputs saturate stops "
               "learning; `experiments/pareto.py` labels it `collapsed` when its validation "
-              "loss repeats exactly (rows written before that label existed are not "
-              "labelled: see `docs/weights.md` for the run shown, whose `accumulation=False` "
-              "network collapsed). Timings were taken with the machine otherwise idle; "
-              "quality columns are on the shipped (DLCTUS) or `experiments/weights/` "
-              "parameters.",
+              "loss repeats exactly (see `docs/weights.md`: the `accumulation=False` "
+              "network of the run shown collapsed, so that row measures a collapsed "
+              "network, not the accumulation buffer's worth). Timings are medians of 3 on "
+              "a shared machine with no other job of ours running (see "
+              "`docs/performance.md` for ratios timed side by side); quality columns are on "
+              "the shipped (DLCTUS) or `experiments/weights/` parameters.",
     "seqlen": "Seconds per step compare rows within one run: the machine may have been "
               "shared (the run shown shared it with a training job).",
 }

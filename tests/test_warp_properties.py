@@ -166,3 +166,25 @@ def test_broadcast_tap_weights_equal_keys_weights_bit_for_bit(x64, dtype, a):
     assert got.dtype == dtype
     np.testing.assert_array_equal(got, want)
     np.testing.assert_array_equal(np.asarray(_tap_weights(tj, 2)), np.concatenate([1 - t, t], -1))
+
+
+def test_separable_read_derivatives_equal_plain_autodiff(x64, rng):
+    """The warps' custom derivative rule (one gather of all taps for the image, whose
+    transpose is one scatter) gives plain autodiff's derivatives, image and weights,
+    forward and reverse, with taps clamped at the borders."""
+    from jtus.sampling.warp import _rows, _separable
+
+    img = jnp.asarray(rng.normal(size=(2, 7, 9, 3)))
+    iy0 = jnp.asarray(rng.integers(-3, 8, size=(2, 5, 6)), jnp.int32)
+    ix0 = jnp.asarray(rng.integers(-3, 10, size=(2, 5, 6)), jnp.int32)
+    wy, wx = (jnp.asarray(rng.normal(size=(2, 5, 6, 4))) for _ in range(2))
+    ct = jnp.asarray(rng.normal(size=(2, 5, 6, 3)))
+    ref, vjp_ref = jax.vjp(lambda a, b, c: _rows(a, iy0, ix0, b, c), img, wy, wx)
+    out, vjp = jax.vjp(lambda a, b, c: _separable(a, iy0, ix0, b, c), img, wy, wx)
+    np.testing.assert_array_equal(out, ref)
+    for g, g_ref in zip(vjp(ct), vjp_ref(ct)):
+        np.testing.assert_allclose(g, g_ref, rtol=0, atol=1e-12)
+    tangents = tuple(jnp.asarray(rng.normal(size=x.shape)) for x in (img, wy, wx))
+    _, t = jax.jvp(lambda a, b, c: _separable(a, iy0, ix0, b, c), (img, wy, wx), tangents)
+    _, t_ref = jax.jvp(lambda a, b, c: _rows(a, iy0, ix0, b, c), (img, wy, wx), tangents)
+    np.testing.assert_allclose(t, t_ref, rtol=0, atol=1e-12)

@@ -87,7 +87,7 @@ def _separable(image, iy0, ix0, wy, wx):
     clamped into the image separately, as ``grid_sample``'s border mode does);
     returns ``[B,...,C]``.
 
-    The value is ``_rows``: one batched gather per tap, indices computed inside the
+    The value is ``_rows``: one gather per tap, its index computed inside the
     gather's fusion. The tangent in the image is one gather of all ``ny * nx`` taps
     on the flattened image, so its transpose, the image gradient, is a single
     scatter-add: sixteen separate scatters (one per bicubic tap, each into its own
@@ -173,8 +173,10 @@ def _bilinear(image, xy):
 def _bicubic(image, xy, a):
     """The 16-tap separable Keys kernel, x first then y (PyTorch's order)."""
     i0, t = _split(xy)
-    wx = _tap_weights(t[..., 0:1].astype(image.dtype), 4, a)
-    wy = _tap_weights(t[..., 1:2].astype(image.dtype), 4, a)
+    # Concatenated, not broadcast (``_tap_weights``): measured faster in DLCTUS's
+    # step at 1080p (XLA:CPU then keeps the read in one fusion, not two).
+    wx = jnp.concatenate(keys_weights(t[..., 0:1].astype(image.dtype), a), -1)
+    wy = jnp.concatenate(keys_weights(t[..., 1:2].astype(image.dtype), a), -1)
     return _separable(image, i0[..., 1] - 1, i0[..., 0] - 1, wy, wx)
 
 
