@@ -34,7 +34,6 @@ import os
 import re
 import sys
 import tempfile
-import time
 
 import jax
 
@@ -106,7 +105,7 @@ def trace_ops(run, hlo_text, steps, logdir):
             for ev in line.events:
                 info = ops.get(ev.name)
                 if info is None:
-                    unmatched += ev.name.startswith("ThunkExecutor") is False
+                    unmatched += not ev.name.startswith("ThunkExecutor")
                     continue
                 if info[0] in _CONTAINERS:
                     continue  # a loop's span contains its body's ops
@@ -135,19 +134,14 @@ def summarize(totals, ops, steps):
 
 
 def profile(run, hlo_text, steps=3):
-    """Time ``run`` (warm) ``steps`` times, then trace it as many times; returns
+    """Time ``run`` ``steps`` times (``bench.timeit``), then trace it as many times; returns
     ``{"steps", "wall_ms" (median, untraced), "unmatched_events", "summary"}``."""
-    walls = []
-    for _ in range(steps):
-        t0 = time.perf_counter()
-        run()
-        walls.append(time.perf_counter() - t0)
+    wall = bench.timeit(run, steps)
     with tempfile.TemporaryDirectory() as logdir:
         totals, ops, unmatched = trace_ops(run, hlo_text, steps, logdir)
     if not totals:
         raise RuntimeError("the trace held no XLA ops that match the compiled module")
-    walls.sort()
-    return {"steps": steps, "wall_ms": 1e3 * walls[len(walls) // 2],
+    return {"steps": steps, "wall_ms": 1e3 * wall,
             "unmatched_events": unmatched, "summary": summarize(totals, ops, steps)}
 
 

@@ -154,18 +154,14 @@ def test_bad_input_errors():
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
-@pytest.mark.parametrize("a", [-0.5, -0.75])
-def test_broadcast_tap_weights_equal_keys_weights_bit_for_bit(x64, dtype, a):
-    from jtus.sampling.warp import _tap_weights, keys_weights
+def test_broadcast_linear_weights_equal_one_minus_t_and_t_bit_for_bit(x64, dtype):
+    from jtus.sampling.warp import _linear_weights
 
     t = np.random.default_rng(3).uniform(0, 1, size=(1000, 1)).astype(dtype)
     t[:3, 0] = [0.0, 0.5, np.nextafter(dtype(1), dtype(0))]
-    tj = jnp.asarray(t)
-    want = np.concatenate([np.asarray(w) for w in keys_weights(tj, a)], -1)
-    got = np.asarray(_tap_weights(tj, 4, a))
+    got = np.asarray(_linear_weights(jnp.asarray(t)))
     assert got.dtype == dtype
-    np.testing.assert_array_equal(got, want)
-    np.testing.assert_array_equal(np.asarray(_tap_weights(tj, 2)), np.concatenate([1 - t, t], -1))
+    np.testing.assert_array_equal(got, np.concatenate([1 - t, t], -1))
 
 
 def test_separable_read_derivatives_equal_plain_autodiff(x64, rng):

@@ -23,12 +23,18 @@ def conv(x, kernel, bias=None, stride=1, padding="SAME"):
     return y
 
 
+def _conv_edge_padded(x, kernel, bias):
+    """``(conv_edge(x, kernel, bias), the edge-padded input)``."""
+    p = (kernel.shape[0] - 1) // 2
+    if not p:
+        return conv(x, kernel, bias), x
+    xp = jnp.pad(x, ((0, 0), (p, p), (p, p), (0, 0)), mode="edge")
+    return conv(xp, kernel, bias)[:, p:-p, p:-p, :], xp
+
+
 def conv_edge(x, kernel, bias=None):
     """Stride-1 convolution with replicate ('edge') padding of (k-1)/2, k odd."""
-    k = kernel.shape[0]
-    p = (k - 1) // 2
-    xp = jnp.pad(x, ((0, 0), (p, p), (p, p), (0, 0)), mode="edge")
-    return conv(xp, kernel, bias)[:, p:-p, p:-p, :] if p else conv(x, kernel, bias)
+    return _conv_edge_padded(x, kernel, bias)[0]
 
 
 def torch_uniform_init(key, shape_hwio):
@@ -68,10 +74,8 @@ def conv_edge_fast(x, kernel, bias):
 
 
 def _fast_fwd(x, kernel, bias):
-    p = (kernel.shape[0] - 1) // 2
-    xp = jnp.pad(x, ((0, 0), (p, p), (p, p), (0, 0)), mode="edge")
-    y = conv(xp, kernel, bias)
-    return (y[:, p:-p, p:-p, :] if p else y), (xp, kernel)
+    y, xp = _conv_edge_padded(x, kernel, bias)
+    return y, (xp, kernel)
 
 
 def _fast_bwd(res, g):

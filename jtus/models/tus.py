@@ -182,7 +182,7 @@ def step(params, state: State, frame: Frame, config: Config = Config()):
                                   return_mask=True)
     rgb = _rectify(config, jnp.where(inside, rep, fresh[..., :3]), color, xy)
     rep_count = sampling.sample(history[..., 3:], pos, config.warp, a=config.warp_a)
-    count = jnp.where(inside, rep_count, 1.0) + 1.0
+    count = jnp.where(inside, rep_count, fresh[..., 3:]) + 1.0
     alpha = jnp.maximum(1.0 / count, config.alpha) if config.inverse_count else config.alpha
     ab = alpha * _beta(config, frame, beta_max)
     out = ab * s + (1 - ab) * rgb

@@ -42,8 +42,15 @@ def _gather(image, iy, ix):
     which XLA:CPU materializes through slow concatenations wherever the indices are
     shared between reads (TUS's step was several times slower for it)."""
     b, h, w, c = image.shape
-    batch = jnp.arange(b).reshape((b,) + (1,) * (iy.ndim - 1))
-    return image.reshape(b * h * w, c)[(batch * h + iy) * w + ix]
+    return image.reshape(b * h * w, c)[_flat_index(image.shape, iy, ix)]
+
+
+def _flat_index(shape, iy, ix):
+    """Index into ``image.reshape(B*H*W, C)`` of pixel ``(iy, ix)`` of each batch
+    element; ``iy``, ``ix`` are ``[B,...]`` (broadcasting against each other)."""
+    b, h, w, _ = shape
+    batch = jnp.arange(b).reshape((b,) + (1,) * (max(iy.ndim, ix.ndim) - 1))
+    return (batch * h + iy) * w + ix
 
 
 def _taps(i0, n, size):
@@ -74,8 +81,7 @@ def _all_taps(image, iy0, ix0, wy, wx):
     b, h, w, c = image.shape
     iy = jnp.clip(iy0[..., None] + jnp.arange(wy.shape[-1]), 0, h - 1)  # [B,...,ny]
     ix = jnp.clip(ix0[..., None] + jnp.arange(wx.shape[-1]), 0, w - 1)
-    batch = jnp.arange(b).reshape((b,) + (1,) * (iy.ndim - 1))
-    idx = (batch * h + iy)[..., :, None] * w + ix[..., None, :]  # [B,...,ny,nx]
+    idx = _flat_index(image.shape, iy[..., :, None], ix[..., None, :])  # [B,...,ny,nx]
     weights = (wy[..., :, None] * wx[..., None, :])[..., None]
     return (image.reshape(b * h * w, c)[idx] * weights).sum((-3, -2))
 
@@ -122,27 +128,19 @@ def keys_weights(t, a):
     ``t`` in [0, 1) is the distance from tap 0. ``a = -0.5`` is Catmull-Rom,
     ``a = -0.75`` PyTorch's bicubic. Returns a tuple of four arrays like ``t``.
     """
-    return _far(t + 1, a), _near(t, a), _near(1 - t, a), _far(2 - t, a)
+    def near(d):  # |d| <= 1
+        return ((a + 2) * d - (a + 3)) * d * d + 1
+
+    def far(d):  # 1 < |d| < 2
+        return ((a * d - 5 * a) * d + 8 * a) * d - 4 * a
+
+    return far(t + 1), near(t), near(1 - t), far(2 - t)
 
 
-def _near(d, a):  # the Keys kernel at |d| <= 1
-    return ((a + 2) * d - (a + 3)) * d * d + 1
-
-
-def _far(d, a):  # ... and at 1 < |d| < 2
-    return ((a * d - 5 * a) * d + 8 * a) * d - 4 * a
-
-
-def _tap_weights(t, n, a=None):
-    """``t [...,1]`` (the fractional part) -> ``[...,n]`` weights of the taps at
-    offsets 0, 1 (``n = 2``, linear) or -1, 0, 1, 2 (``n = 4``, Keys ``a``). Built by
-    broadcasting, not concatenation (which XLA:CPU fuses badly); the values are
-    ``keys_weights``'s bit for bit: ``|t - k|`` is exactly ``t + 1, t, 1 - t, 2 - t``."""
-    if n == 2:
-        return jnp.where(jnp.arange(2) == 0, 1 - t, t)
-    k = jnp.arange(-1, 3)
-    d = jnp.abs(t - k.astype(t.dtype))
-    return jnp.where((k == 0) | (k == 1), _near(d, a), _far(d, a))
+def _linear_weights(t):
+    """``t [...,1]`` (the fractional part) -> ``[...,2]``: ``1 - t, t``, by a
+    broadcast select rather than a concatenation, which XLA:CPU fuses badly."""
+    return jnp.where(jnp.arange(2) == 0, 1 - t, t)
 
 
 def _split(xy):
@@ -162,8 +160,8 @@ def _bilinear_at(image, x, y):
     """Bilinear read at pixel coordinates ``x, y [...,1]``."""
     ix, tx = _split(x)
     iy, ty = _split(y)
-    return _separable(image, iy[..., 0], ix[..., 0], _tap_weights(ty.astype(image.dtype), 2),
-                      _tap_weights(tx.astype(image.dtype), 2))
+    return _separable(image, iy[..., 0], ix[..., 0], _linear_weights(ty.astype(image.dtype)),
+                      _linear_weights(tx.astype(image.dtype)))
 
 
 def _bilinear(image, xy):
@@ -173,8 +171,8 @@ def _bilinear(image, xy):
 def _bicubic(image, xy, a):
     """The 16-tap separable Keys kernel, x first then y (PyTorch's order)."""
     i0, t = _split(xy)
-    # Concatenated, not broadcast (``_tap_weights``): measured faster in DLCTUS's
-    # step at 1080p (XLA:CPU then keeps the read in one fusion, not two).
+    # Concatenated Keys weights: a broadcast form (as ``_linear_weights``) was measured
+    # slower in DLCTUS's step at 1080p (XLA:CPU split the read across two fusions).
     wx = jnp.concatenate(keys_weights(t[..., 0:1].astype(image.dtype), a), -1)
     wy = jnp.concatenate(keys_weights(t[..., 1:2].astype(image.dtype), a), -1)
     return _separable(image, i0[..., 1] - 1, i0[..., 0] - 1, wy, wx)
