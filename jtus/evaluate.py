@@ -140,7 +140,7 @@ def crop_grid(entries, dataset_path, factor, path, split="test", crop=64, rows=3
 
     from jtus import rollout
     from jtus.data.dataset import Dataset
-    from jtus.data.exr import _srgb
+    from jtus.data.exr import linear_to_srgb
 
     tiles = []
     with Dataset(dataset_path) as ds:
@@ -170,7 +170,7 @@ def crop_grid(entries, dataset_path, factor, path, split="test", crop=64, rows=3
             row.append(tgt[y:y + c, x:x + c])
             tiles.append(np.concatenate(row, 1))
     img = np.concatenate(tiles, 0)
-    Image.fromarray(np.round(_srgb(img) * 255).astype(np.uint8)).save(path)
+    Image.fromarray(np.round(linear_to_srgb(img) * 255).astype(np.uint8)).save(path)
     return ["input"] + [e.label for e in entries] + ["reference"]
 
 

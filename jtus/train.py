@@ -125,6 +125,10 @@ class Config:
     batch: int = 4
     crop: int = 64
     lr: float = 1e-3
+    schedule: str = "constant"  # constant | cosine (warm-up, then cosine decay to lr_end)
+    warmup_steps: int = 0
+    lr_end: float = 0.05        # cosine: final rate as a fraction of lr
+    clip_norm: float = 0.0      # global gradient-norm clip; 0 = off
     epochs: int = 8
     steps_per_epoch: int = 100
     val_batches: int = 2
@@ -135,6 +139,8 @@ class Config:
     perceptual_weights: str = ""  # .npz of VGG-16 (jtus.perceptual): adds NSRR's term
     perceptual_weight: float = 0.1
     model_overrides: tuple = ()   # (("warp", "bilinear"), ...) for the model's config
+    init_from: str = ""           # start from these parameters (a checkpoint of the same
+                                  # model and factor); the optimizer starts fresh
 
     def __post_init__(self):
         if self.mode not in ("bptt", "tbptt"):
@@ -144,6 +150,8 @@ class Config:
                              f"got {self.loss_frames}")
         if self.mode == "tbptt":
             rollout.tbptt_windows(self.seq_len, self.k1, self.k2)
+        if self.schedule not in ("constant", "cosine"):
+            raise ValueError(f"schedule: expected constant or cosine, got {self.schedule!r}")
         if self.loss not in losses.NAMES + ("kpn",):
             raise ValueError(f"loss: expected one of {losses.NAMES + ('kpn',)}, "
                              f"got {self.loss!r}")
@@ -161,6 +169,16 @@ PRESETS = {
     "paper": Config(seq_len=30, loss_frames=5, batch=4, crop=256, lr=1e-4, epochs=200,
                     steps_per_epoch=500, val_batches=10, val_videos=10,
                     dataset="data/paper.h5", data_preset="paper"),
+    # generalization (docs/weights.md): the randomized data with every jitter sequence,
+    # crop 128, 16-frame sequences as TBPTT windows of 8 (the best of the sequence-
+    # length sweep, docs/results.md), warm-up then cosine decay, gradient clipping;
+    # 60 epochs x 200 sequences (24,000 optimizer steps), hours on 2 CPU cores:
+    #   nohup python -m jtus.train --preset diverse --factor 4 --workdir runs/diverse-x4 &
+    #   python -m jtus.train --preset diverse --factor 4 --workdir runs/diverse-x4 --resume
+    "diverse": Config(seq_len=16, mode="tbptt", k1=8, k2=8, loss_frames=8, batch=4, crop=128,
+                      lr=1e-3, schedule="cosine", warmup_steps=300, lr_end=0.05,
+                      clip_norm=1.0, epochs=60, steps_per_epoch=200, val_batches=4,
+                      val_videos=8, dataset="data/diverse.h5", data_preset="diverse"),
 }
 
 
@@ -193,7 +211,15 @@ def _accept(config: Config):
 
 
 def _optimizer(config: Config):
-    return optax.adam(config.lr)
+    lr = config.lr
+    if config.schedule == "cosine":
+        total = config.epochs * config.steps_per_epoch * len(_plan(config)[3])
+        lr = optax.warmup_cosine_decay_schedule(
+            0.0, config.lr, min(config.warmup_steps, max(total - 1, 0)), max(total, 1),
+            config.lr * config.lr_end)
+    adam = optax.adam(lr)
+    return optax.chain(optax.clip_by_global_norm(config.clip_norm), adam) if config.clip_norm \
+        else adam
 
 
 def _plan(config: Config):
@@ -382,7 +408,14 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
     os.makedirs(workdir, exist_ok=True)
     ensure_dataset(config, progress)
     model, loss_fn, opt = _model(config), _loss(config), _optimizer(config)
-    ts = create_train_state(model.init(jax.random.PRNGKey(config.seed)), opt)
+    params = model.init(jax.random.PRNGKey(config.seed))
+    if config.init_from:
+        params, init_cfg = load_params(config.init_from)
+        if (init_cfg.model, init_cfg.factor) != (config.model, config.factor):
+            raise ValueError(f"init_from: {config.init_from} holds {init_cfg.model} at "
+                             f"{init_cfg.factor}x, this run trains {config.model} at "
+                             f"{config.factor}x")
+    ts = create_train_state(params, opt)
     start_epoch, history = 0, []
     cfg_path = os.path.join(workdir, "config.json")
     if resume and os.path.exists(os.path.join(workdir, "checkpoint.msgpack")):

@@ -59,7 +59,7 @@ def write_mp4(path, frames_lr, outputs, factor, fps=30):
         import imageio_ffmpeg  # noqa: F401
     except ImportError as e:
         raise ValueError("--mp4 needs the video extra: pip install -e \".[video]\"") from e
-    from jtus.data.exr import _srgb
+    from jtus.data.exr import linear_to_srgb
 
     lr = np.repeat(np.repeat(frames_lr, factor, 1), factor, 2)
     both = np.concatenate([lr, outputs], 2)
@@ -67,7 +67,7 @@ def write_mp4(path, frames_lr, outputs, factor, fps=30):
     with imageio.get_writer(path, fps=fps, codec="libx264", quality=8,
                             macro_block_size=1) as w:
         for img in both:
-            w.append_data(np.round(_srgb(img) * 255).astype(np.uint8))
+            w.append_data(np.round(linear_to_srgb(img) * 255).astype(np.uint8))
 
 
 def main(argv=None):

@@ -52,8 +52,12 @@ def zero_up(x, jitter, f):
     return out
 
 
-def step(net, history, color, depth, motion, jitter, f, near=0.1, far=100.0):
-    """One DLCTUS step; all tensors NCHW; returns (rgb [B,3,H,W], history [B,4,H,W])."""
+def step(net, history, color, depth, motion, jitter, f, near=0.1, far=100.0, reset=None):
+    """One DLCTUS step; all tensors NCHW; returns (rgb [B,3,H,W], history [B,4,H,W]).
+
+    ``reset [B]`` (bool): as the thesis's listing does for its first frame, a reset
+    frame's history is the fresh jitter-aligned input, not reprojected (its motion
+    points into a frame the history never saw)."""
     b, _, h, w = color.shape
     hh, ww = h * f, w * f
     lin = (near * far / (far - depth * (far - near)) - near) / (far - near)
@@ -67,6 +71,8 @@ def step(net, history, color, depth, motion, jitter, f, near=0.1, far=100.0):
                         align_corners=False)
     inside = ((grid >= -1) & (grid <= 1)).all(-1)[:, None]
     hist = torch.where(inside, rep, j)
+    if reset is not None:
+        hist = torch.where(reset[:, None, None, None], j, hist)
     o = net(torch.cat([zero, hist], 1)).clamp(0, 1)
     o1, o2 = o[:, 0:1], o[:, 1:2]
     out = j * o1 + hist * (1 - o1)

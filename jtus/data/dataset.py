@@ -44,18 +44,29 @@ CONVENTIONS = {
 
 @dataclasses.dataclass(frozen=True)
 class Preset:
-    """What ``generate`` renders: per split, (scene names, videos per scene, frames)."""
+    """What ``generate`` renders: per split, (scene names, videos per scene, frames).
+
+    ``jitters``: the jitter sequences a video draws from (``jtus.sampling.jitter``);
+    each video's choice and its starting phase come from its own seed and are stored
+    (``jitter`` per frame, the sequence's name in the video's attrs)."""
     size: tuple
     factors: tuple
     spp: int
     spp_match: int
     splits: dict
+    jitters: tuple = ("thesis",)
 
     def total_frames(self):
         return sum(len(s) * n * t for s, n, t in self.splits.values())
 
 
+def _random(split, count):
+    from jtus.sim import randomized
+    return tuple(randomized.name_of(s) for s in randomized.split_seeds(split, count))
+
+
 def _presets():
+    from jtus.sampling.jitter import VARIETY
     from jtus.sim import SCENES
     all_ = tuple(SCENES)
     return {
@@ -73,10 +84,21 @@ def _presets():
             "test": (all_, 1, 40)}),
         "paper": Preset((1080, 1920), (2, 4), 64, 1, {
             "train": (all_, 6, 60), "val": (all_[:10], 1, 60), "test": (all_[:10], 1, 60)}),
+        # generalization: 200 randomized scenes for training, unseen seeds for validation
+        # and test, the 13 hand-made scenes as a second test family; every jitter
+        # sequence (docs/data.md)
+        # (192x192: 256x256 rendered at about half the speed, docs/data.md)
+        "diverse": Preset((192, 192), (2, 4), 16, 1, {
+            "train": (_random("train", 200), 1, 16), "val": (_random("val", 8), 1, 16),
+            "test": (_random("test", 16) + all_, 1, 24)}, VARIETY),
+        # the same family in seconds, for tests
+        "diverse-tiny": Preset((32, 32), (2, 4), 4, 1, {
+            "train": (_random("train", 3), 1, 8), "val": (_random("val", 1), 1, 8),
+            "test": (_random("test", 1) + ("objects",), 1, 8)}, VARIETY),
     }
 
 
-PRESET_NAMES = ("tiny", "default", "long", "paper")
+PRESET_NAMES = ("tiny", "default", "long", "paper", "diverse", "diverse-tiny")
 
 
 def preset(name) -> Preset:
@@ -138,8 +160,22 @@ def _root_attrs(fh, size, factors, spp, spp_match):
                      "size": list(size), "conventions": json.dumps(CONVENTIONS)})
 
 
-def generate(name_or_preset, out, progress=True, scenes=None):
-    """Render a preset into ``out`` (HDF5), atomically, with a progress bar."""
+def video_jitter(choices, scene_name, split, index):
+    """``(sequence name, phase)`` of one video: the only choice when there is one
+    (phase 0, the thesis's setup), else drawn from the video's own seed."""
+    from jtus.sim.paths import video_seed
+
+    if len(choices) == 1:
+        return choices[0], 0
+    rng = np.random.default_rng([video_seed(scene_name, split, index), 0x717])
+    return str(choices[int(rng.integers(len(choices)))]), int(rng.integers(0, 64))
+
+
+def generate(name_or_preset, out, progress=True, scenes=None, custom=None):
+    """Render a preset into ``out`` (HDF5), atomically, with a progress bar.
+
+    ``scenes``: render only these names of the preset; ``custom``: ``{name: Scene}``
+    for names that are not built-in (scenes declared in JSON)."""
     from tqdm import tqdm
 
     from jtus.sim import get_scene
@@ -156,14 +192,18 @@ def generate(name_or_preset, out, progress=True, scenes=None):
                 if scenes is not None and name not in scenes:
                     continue
                 if name not in renderers:
-                    renderers[name] = VideoRenderer(get_scene(name), p.size, p.factors, p.spp,
+                    scene = custom[name] if custom and name in custom else get_scene(name)
+                    renderers[name] = VideoRenderer(scene, p.size, p.factors, p.spp,
                                                     p.spp_match)
                 r = renderers[name]
                 for i in range(per_scene):
-                    video = r.video(split, i, length, progress=bar.update)
+                    jit, phase = video_jitter(p.jitters, name, split, i)
+                    video = r.video(split, i, length, progress=bar.update, jitter=jit,
+                                    jitter_phase=phase)
                     g = fh.create_group(f"{split}/{name}_{i:02d}")
                     g.attrs.update({"scene": name, "effects": json.dumps(list(r.scene.effects)),
-                                    "length": length, "index": i})
+                                    "length": length, "index": i, "jitter_sequence": jit,
+                                    "jitter_phase": phase})
                     write_video(g, video, p.factors, p.spp_match)
         fh.flush()
     bar.close()

@@ -182,7 +182,8 @@ def import_exr(input_dir, target_dir, factor, out, spec: ImportSpec = ImportSpec
     return out
 
 
-def _srgb(x):
+def linear_to_srgb(x):
+    """Linear RGB -> sRGB-encoded values in [0, 1] (clipped first)."""
     x = np.clip(x, 0.0, 1.0)
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
 
@@ -204,7 +205,7 @@ def write_sequence(frames, folder, fmt="exr", prefix="frame", srgb=True):
         if fmt == "exr":
             write_exr(path, {c: img[..., i] for i, c in enumerate("RGB")})
         else:
-            v = _srgb(img) if srgb else np.clip(img, 0, 1)
+            v = linear_to_srgb(img) if srgb else np.clip(img, 0, 1)
             Image.fromarray(np.round(v * 255).astype(np.uint8)).save(path)
         paths.append(path)
     return paths

@@ -1,7 +1,7 @@
 """Every system as ``make(config) -> Model(init, init_state, step, config)``.
 
 ``build(name, factor, **overrides)`` names them for the CLIs: ``dlctus``,
-``jau`` / ``jau-bicubic``, ``tus`` (the thesis's preset) / ``tus-clip``, ``nsrr`` /
+``jau`` / ``jau-bicubic``, ``tus`` (the thesis's preset) / ``tus-clip`` / ``tus-mean``, ``nsrr`` /
 ``nsrr-fast``, ``kpn``, ``mlp``.
 """
 
@@ -18,6 +18,7 @@ _BUILDERS = {
     "jau-bicubic": lambda f: (jau, jau.Config(factor=f, method="bicubic")),
     "tus": lambda f: (tus, tus.PRESETS["tus"](f)),
     "tus-clip": lambda f: (tus, tus.PRESETS["tus-clip"](f)),
+    "tus-mean": lambda f: (tus, tus.PRESETS["tus-mean"](f)),
     "nsrr": lambda f: (nsrr, nsrr.Config(factor=f)),
     "nsrr-fast": lambda f: (nsrr, nsrr.Config(factor=f, fast=True)),
     "kpn": lambda f: (kpn, kpn.Config(factor=f)),

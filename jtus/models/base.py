@@ -37,3 +37,13 @@ def compute_dtype(name):
 def param_count(params):
     import jax
     return sum(int(x.size) for x in jax.tree_util.tree_leaves(params))
+
+
+def reset_select(reset, fresh, value):
+    """Per batch element, ``fresh`` where ``reset [B]`` is set, else ``value``
+    (``[B,...]`` arrays); ``value`` itself when there is no reset flag. Every model's
+    history on a first frame or a camera cut goes through here: the fresh history is
+    used as it is, never reprojected (docs/conventions.md)."""
+    if reset is None:
+        return value
+    return jnp.where(reset.reshape(reset.shape + (1,) * (value.ndim - 1)), fresh, value)

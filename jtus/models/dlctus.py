@@ -40,7 +40,7 @@ from jtus import sampling
 from jtus.data.conventions import linearize_depth
 from jtus.frame import Frame
 from jtus.models import layers
-from jtus.models.base import Model, carry_dtype, compute_dtype
+from jtus.models.base import Model, carry_dtype, compute_dtype, reset_select
 
 FORMULATIONS = ("standard", "opt1", "opt2")
 CONV_BACKWARDS = ("autodiff", "custom")
@@ -209,8 +209,6 @@ def prepare(state: State, frame: Frame, config: Config):
         jau = _jau(config, color, jitter)
     with jax.named_scope("reprojection"):
         history = state.history
-        if frame.reset is not None:
-            history = jnp.where(frame.reset[:, None, None, None], jau, history)
         if not config.accumulation:
             history = history.at[..., 3].set(1.0)
         mv = sampling.dilate_motion(motion, depth) if config.dilation else motion
@@ -218,6 +216,10 @@ def prepare(state: State, frame: Frame, config: Config):
         rep, inside = sampling.sample(history, xy, config.warp, a=config.warp_a,
                                       return_mask=True)
         hist = jnp.where(inside, rep, jau)
+        # A reset (first frame, camera cut) takes the fresh input as its history, not
+        # reprojected: this frame's motion points into a frame the history never saw
+        # (the thesis's listing treats the first frame the same way).
+        hist = reset_select(frame.reset, jau, hist)
     return NetInput(lr, jitter, hist), jau, hist
 
 

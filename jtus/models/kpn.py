@@ -27,7 +27,7 @@ from jtus import sampling
 from jtus.data.conventions import linearize_depth
 from jtus.frame import Frame
 from jtus.models import layers
-from jtus.models.base import Model
+from jtus.models.base import Model, reset_select
 
 HIDDEN = 5
 K = 5  # kernel size
@@ -86,16 +86,15 @@ def prepare(state: State, frame: Frame, config: Config):
     b, h, w, _ = frame.color.shape
     jit = frame.jitter.astype(jnp.float32)
     jau = sampling.jitter_aligned_upsample(frame.color.astype(jnp.float32), jit, f)
-    history = state.history
-    if frame.reset is not None:
-        fresh = jnp.concatenate([jau, jnp.zeros(jau.shape[:-1] + (HIDDEN,), jnp.float32)], -1)
-        history = jnp.where(frame.reset[:, None, None, None], fresh, history)
     mv = f * sampling.upsample(frame.motion.astype(jnp.float32), f)
     depth = sampling.upsample(linearize_depth(frame.depth.astype(jnp.float32), config.near,
                                               config.far), f)
     xy = sampling.pixel_grid(b, h * f, w * f) + mv
-    rep, inside = sampling.sample(history, xy, "catmull_rom", return_mask=True)
+    rep, inside = sampling.sample(state.history, xy, "catmull_rom", return_mask=True)
     rep = jnp.where(inside, rep, 0.0)
+    # a reset frame's history is the fresh input, unwarped (base.reset_select)
+    fresh = jnp.concatenate([jau, jnp.zeros(jau.shape[:-1] + (HIDDEN,), jnp.float32)], -1)
+    rep = reset_select(frame.reset, fresh, rep)
     return jnp.concatenate([jau, depth, mv, rep], -1), jau, rep
 
 

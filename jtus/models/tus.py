@@ -29,11 +29,12 @@ import jax.numpy as jnp
 
 from jtus import sampling
 from jtus.frame import Frame
-from jtus.models.base import Model
+from jtus.models.base import Model, reset_select
 
 RECTIFY = ("clamp", "clip", "none")
 FILTERS = ("tent", "gaussian")
 BETAS = ("box", "max", "one")
+COUNTS = ("frames", "samples")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,11 +50,14 @@ class Config:
     sigma: float = 0.47             # Gaussian filter width in HR pixels (UE4-like)
     beta: str = "box"
     dilation: bool = False
+    count: str = "frames"           # what N counts: every frame, or the samples a pixel
+                                    # received (N += β; with inverse_count a per-pixel
+                                    # running mean of its samples, which converges)
 
     def __post_init__(self):
         checks = (("rectify", self.rectify, RECTIFY), ("filter", self.filter, FILTERS),
                   ("beta", self.beta, BETAS), ("color_space", self.color_space, ("rgb", "ycocg")),
-                  ("warp", self.warp, sampling.METHODS))
+                  ("warp", self.warp, sampling.METHODS), ("count", self.count, COUNTS))
         for name, value, allowed in checks:
             if value not in allowed:
                 raise ValueError(f"{name}: expected one of {allowed}, got {value!r}")
@@ -69,8 +73,17 @@ def thesis(factor) -> Config:
     return Config(factor=factor, alpha=0.5 if factor == 2 else 1.0)
 
 
+def running_mean(factor) -> Config:
+    """Accumulation as a per-pixel running mean of the samples each HR pixel received
+    (Yang et al.'s box β, α = 1/N counting samples, floor 0.001), without rectification:
+    on a static hold it converges (tests/test_hard_cases.py); under motion it ghosts."""
+    return Config(factor=factor, rectify="none", inverse_count=True, alpha=0.001,
+                  count="samples")
+
+
 PRESETS = {"tus": thesis, "tus-clip": lambda f: dataclasses.replace(thesis(f), rectify="clip",
-                                                                      color_space="ycocg")}
+                                                                      color_space="ycocg"),
+           "tus-mean": running_mean}
 
 
 class State(NamedTuple):
@@ -151,14 +164,17 @@ def _rectify(config, hist, color, xy):
     return back(mean + t * v)
 
 
-def _fresh(s):
-    return jnp.concatenate([s, jnp.ones(s.shape[:-1] + (1,), s.dtype)], -1)
+def _fresh(s, config):
+    """A reset history: the scaled input with N = 1 (counting frames) or N = 0
+    (counting samples: the interpolated values are no sample yet)."""
+    n = 1.0 if config.count == "frames" else 0.0
+    return jnp.concatenate([s, jnp.full(s.shape[:-1] + (1,), n, s.dtype)], -1)
 
 
 def init_state(frame: Frame, config: Config = Config()) -> State:
     color = frame.color.astype(jnp.float32)
     s, _ = _scaled_input(config, frame, color, _jau_coords(frame, config.factor))
-    return State(_fresh(s))
+    return State(_fresh(s, config))
 
 
 def step(params, state: State, frame: Frame, config: Config = Config()):
@@ -169,10 +185,8 @@ def step(params, state: State, frame: Frame, config: Config = Config()):
     b, h, w, _ = color.shape
     xy = _jau_coords(frame, f)
     s, beta_max = _scaled_input(config, frame, color, xy)
-    fresh = _fresh(s)
+    fresh = _fresh(s, config)
     history = state.history
-    if frame.reset is not None:
-        history = jnp.where(frame.reset[:, None, None, None], fresh, history)
     mv = sampling.dilate_motion(motion, depth) if config.dilation else motion
     pos = sampling.pixel_grid(b, h * f, w * f) + f * sampling.upsample(mv, f)
     # Colour and count are read by separate warps (the same values): XLA:CPU splits one
@@ -180,11 +194,17 @@ def step(params, state: State, frame: Frame, config: Config = Config()):
     # slower than the whole read (docs/performance.md).
     rep, inside = sampling.sample(history[..., :3], pos, config.warp, a=config.warp_a,
                                   return_mask=True)
-    rgb = _rectify(config, jnp.where(inside, rep, fresh[..., :3]), color, xy)
+    # a reset frame's history is the fresh input, unwarped (base.reset_select)
+    rep = reset_select(frame.reset, fresh[..., :3], jnp.where(inside, rep, fresh[..., :3]))
+    rgb = _rectify(config, rep, color, xy)
     rep_count = sampling.sample(history[..., 3:], pos, config.warp, a=config.warp_a)
-    count = jnp.where(inside, rep_count, fresh[..., 3:]) + 1.0
-    alpha = jnp.maximum(1.0 / count, config.alpha) if config.inverse_count else config.alpha
-    ab = alpha * _beta(config, frame, beta_max)
+    count = reset_select(frame.reset, fresh[..., 3:],
+                         jnp.where(inside, rep_count, fresh[..., 3:]))
+    beta = _beta(config, frame, beta_max)
+    count = count + (1.0 if config.count == "frames" else beta)
+    alpha = (jnp.clip(1.0 / jnp.maximum(count, 1e-6), config.alpha, 1.0) if config.inverse_count
+             else config.alpha)
+    ab = alpha * beta
     out = ab * s + (1 - ab) * rgb
     return out, State(jnp.concatenate([out, count], -1))
 

@@ -64,14 +64,20 @@ def fsr2(factor):
 
 
 SEQUENCES = ("thesis", "halton", "fsr2")
+# What a video of the randomized data draws from: the thesis's patterns, Halton(2,3)
+# of the lengths engines use, and FSR 2's length rule.
+VARIETY = ("thesis", "halton8", "halton16", "halton32", "fsr2")
 
 
 def jitter_sequence(name, factor, length=16):
     """A named sequence for up-sampling factor ``factor``.
 
     ``thesis``: the thesis's pattern for the factor (4x4 for f=4, 2x2 for f=2);
-    ``halton``: Halton(2,3) elements 1..``length``; ``fsr2``: see ``fsr2``.
+    ``halton``: Halton(2,3) elements 1..``length``; ``halton<N>``: the same with
+    length N; ``fsr2``: see ``fsr2``.
     """
+    if name.startswith("halton") and name[6:].isdigit():
+        return halton(int(name[6:]))
     if name == "thesis":
         if factor == 4:
             return thesis_4x4()
@@ -82,4 +88,4 @@ def jitter_sequence(name, factor, length=16):
         return halton(length)
     if name == "fsr2":
         return fsr2(factor)
-    raise ValueError(f"name: expected one of {SEQUENCES}, got {name!r}")
+    raise ValueError(f"name: expected one of {SEQUENCES} or halton<N>, got {name!r}")

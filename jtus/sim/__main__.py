@@ -1,14 +1,25 @@
-"""``python -m jtus.sim``: list the built-in scenes, preview them as image strips.
+"""``python -m jtus.sim``: list, preview and render scenes; time the renderer.
 
     python -m jtus.sim list
     python -m jtus.sim preview --scene fence_pan --out docs/img/fence_pan.png
     python -m jtus.sim preview --all --out docs/img/scenes.png --size 128 --factor 4
+    python -m jtus.sim preview --random 0 1 2 3 --out random.png
+    python -m jtus.sim show --random 7 > my_scene.json        # a spec to edit
+    python -m jtus.sim render --scene my_scene.json --out my.h5 --frames 24
+    python -m jtus.sim render --random 123 --effects camera_motion,texture_detail --out r.h5
     python -m jtus.sim fps --preset default
+    python -m jtus.sim cost --out docs/results/sim_cost.json
+
+A scene is a built-in name, ``random_<seed>``, or a JSON file (``show`` prints one).
+``render`` writes the dataset layout of ``docs/data.md`` (the videos in ``--split``),
+which ``train``, ``evaluate`` and ``upsample`` read like any generated dataset.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import sys
 import time
 
@@ -16,18 +27,45 @@ import numpy as np
 
 
 def _to_u8(x):
-    from jtus.data.exr import _srgb
-    return np.round(_srgb(x) * 255).astype(np.uint8)
+    from jtus.data.exr import linear_to_srgb
+    return np.round(linear_to_srgb(x) * 255).astype(np.uint8)
 
 
-def strip(scene_name, size=128, factor=4, frame=12, spp=16, split="test"):
+def resolve(spec, effects=None):
+    """A ``Scene`` from a built-in name, ``random_<seed>``, a ``.json`` path or a seed
+    (int); ``effects`` (names) replaces the scene's declared effects."""
+    import dataclasses
+
+    from jtus.sim import from_json, get_scene, random_scene
+    from jtus.sim.scene import EFFECTS
+
+    if effects is not None:
+        bad = [e for e in effects if e not in EFFECTS]
+        if bad:
+            raise ValueError(f"effects: unknown {bad}; expected names from {EFFECTS}")
+    if isinstance(spec, int):
+        return random_scene(spec, effects)
+    if str(spec).endswith(".json") or os.path.sep in str(spec):
+        if not os.path.isfile(spec):
+            raise FileNotFoundError(f"scene: {spec} does not exist")
+        try:
+            scene = from_json(spec)
+        except json.JSONDecodeError as e:
+            raise ValueError(f"scene: {spec} is not valid JSON ({e})") from e
+    else:
+        scene = get_scene(str(spec))
+    return dataclasses.replace(scene, effects=tuple(effects)) if effects is not None else scene
+
+
+def strip(scene, size=128, factor=4, frame=12, spp=16, split="test"):
     """One row: input (nearest-upscaled), target, motion (x red, y green, 0.5 = still;
-    ±2 LR pixels full scale), linear depth (near dark); linear RGB in [0,1]."""
+    ±2 LR pixels full scale), linear depth (near dark); linear RGB in [0,1].
+    ``scene``: a ``Scene`` or anything ``resolve`` takes."""
     from jtus.data.conventions import linearize_depth
-    from jtus.sim import get_scene
+    from jtus.sim.scene import Scene
     from jtus.sim.video import VideoRenderer
 
-    scene = get_scene(scene_name)
+    scene = scene if isinstance(scene, Scene) else resolve(scene)
     r = VideoRenderer(scene, (size, size), (factor,), spp)
     v = r.video(split, 0, frame + 1)
     x = v[f"x{factor}"]
@@ -40,40 +78,183 @@ def strip(scene_name, size=128, factor=4, frame=12, spp=16, split="test"):
                            ], 1)
 
 
-def main(argv=None):
-    from PIL import Image
+def _scenes_from(args):
+    """The scenes an invocation names: ``--scene`` (several), ``--random`` seeds,
+    ``--all``; each with ``--effects`` when given."""
+    effects = None
+    if getattr(args, "effects", None):
+        effects = [e.strip() for e in args.effects.split(",") if e.strip()]
+    specs = list(args.scene or []) + [int(s) for s in (args.random or [])]
+    if getattr(args, "all", False):
+        from jtus.sim import SCENES
+        specs += list(SCENES)
+    if not specs:
+        raise ValueError("scene: give --scene NAME|FILE.json, --random SEED or --all")
+    return [resolve(s, effects) for s in specs]
 
-    from jtus.sim import SCENES, get_scene
+
+def _check_out(path, force, ext):
+    if os.path.isdir(path):
+        raise ValueError(f"--out: {path} is a folder; expected a {ext} file path")
+    if not path.endswith(ext):
+        raise ValueError(f"--out: expected a path ending in {ext}, got {path}")
+    if os.path.exists(path) and not force:
+        raise ValueError(f"--out: {path} exists; pass --force to replace it")
+
+
+def _render(args):
+    from jtus.data import dataset
+    from jtus.sampling.jitter import VARIETY, jitter_sequence
+
+    scenes = _scenes_from(args)
+    names = [s.name for s in scenes]
+    if len(set(names)) != len(names):
+        raise ValueError(f"scene: names repeat ({names}); every scene needs its own name")
+    _check_out(args.out, args.force, ".h5")
+    if args.size < 4 or args.size % 4:
+        raise ValueError(f"--size: expected a positive multiple of 4, got {args.size}")
+    for f in args.factors:
+        if f not in (2, 4):
+            raise ValueError(f"--factors: expected 2 and/or 4, got {f}")
+    if args.frames < 1 or args.videos < 1 or args.spp < 1:
+        raise ValueError("--frames, --videos and --spp: expected positive integers")
+    jitters = VARIETY if args.jitter == "variety" else (args.jitter,)
+    for j in jitters:
+        for f in args.factors:
+            jitter_sequence(j, f)  # refuses unknown names before anything renders
+    preset = dataset.Preset((args.size, args.size), tuple(args.factors), args.spp, 1,
+                            {sp: ((tuple(names) if sp == args.split else ()), args.videos,
+                                  args.frames) for sp in dataset.SPLITS}, jitters)
+    t0 = time.perf_counter()
+    dataset.generate(preset, args.out, progress=not args.quiet,
+                     custom={s.name: s for s in scenes})
+    print(f"wrote {args.out}: {len(names)} scene(s) x {args.videos} video(s) x {args.frames} "
+          f"frames in split {args.split!r} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
+    return 0
+
+
+def main(argv=None):
+    from jtus.sampling.jitter import VARIETY
 
     p = argparse.ArgumentParser(prog="python -m jtus.sim", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
     sub.add_parser("list", help="the built-in scenes and their effects")
+
+    def scene_args(q, many=True):
+        q.add_argument("--scene", nargs="+" if many else 1,
+                       help="built-in name, random_<seed> or a .json spec")
+        q.add_argument("--random", nargs="+" if many else 1, type=int, metavar="SEED",
+                       help="scenes of the randomized family")
+        q.add_argument("--effects", help="comma-separated effects replacing the scene's own")
+
     v = sub.add_parser("preview", help="input | target | motion | depth strip")
-    v.add_argument("--scene", choices=SCENES)
-    v.add_argument("--all", action="store_true")
+    scene_args(v)
+    v.add_argument("--all", action="store_true", help="every built-in scene")
     v.add_argument("--out", required=True)
     v.add_argument("--size", type=int, default=128)
-    v.add_argument("--factor", type=int, default=4)
+    v.add_argument("--factor", type=int, default=4, choices=(2, 4))
     v.add_argument("--frame", type=int, default=12)
     v.add_argument("--spp", type=int, default=16)
+    s = sub.add_parser("show", help="print a scene's JSON spec")
+    scene_args(s, many=False)
+    r = sub.add_parser("render", help="render scenes into an HDF5 dataset")
+    scene_args(r)
+    r.add_argument("--out", required=True)
+    r.add_argument("--force", action="store_true", help="replace an existing --out")
+    r.add_argument("--frames", type=int, default=24)
+    r.add_argument("--videos", type=int, default=1, help="videos per scene (own camera seeds)")
+    r.add_argument("--size", type=int, default=256, help="HR frame size (square)")
+    r.add_argument("--factors", type=int, nargs="+", default=[2, 4])
+    r.add_argument("--spp", type=int, default=16, help="target samples per pixel")
+    r.add_argument("--split", default="test", choices=("train", "val", "test"))
+    r.add_argument("--jitter", default="thesis",
+                   help=f"one of {VARIETY}, halton<N>, or 'variety' (drawn per video)")
+    r.add_argument("--quiet", action="store_true")
     f = sub.add_parser("fps", help="rendering speed of a dataset preset on this machine")
     f.add_argument("--preset", default="default")
     f.add_argument("--frames", type=int, default=6)
+    c = sub.add_parser("cost", help="rendering time per frame with each effect alone")
+    c.add_argument("--seed", type=int, default=3, help="random scene to measure")
+    c.add_argument("--size", type=int, default=192)
+    c.add_argument("--frames", type=int, default=4)
+    c.add_argument("--out", help="write the table as JSON here")
     args = p.parse_args(argv)
+    try:
+        return _dispatch(args)
+    except (ValueError, FileNotFoundError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+
+
+def _dispatch(args):
+    from jtus.sim import SCENES, get_scene, to_json
+
     if args.cmd == "list":
         for name in SCENES:
             print(f"{name:14s} {', '.join(get_scene(name).effects)}")
+        print("random_<seed> (the randomized family: python -m jtus.sim show --random SEED)")
+        return 0
+    if args.cmd == "show":
+        print(to_json(_scenes_from(args)[0]))
         return 0
     if args.cmd == "preview":
-        if not args.all and not args.scene:
-            p.error("preview: give --scene NAME or --all")
-        names = SCENES if args.all else (args.scene,)
-        rows = [strip(n, args.size, args.factor, args.frame, args.spp) for n in names]
+        from PIL import Image
+
+        scenes = _scenes_from(args)
+        if os.path.isdir(args.out):
+            raise ValueError(f"--out: {args.out} is a folder; expected an image path")
+        rows = [strip(sc, args.size, args.factor, args.frame, args.spp) for sc in scenes]
         Image.fromarray(_to_u8(np.concatenate(rows, 0))).save(args.out)
         print(f"wrote {args.out}")
         return 0
+    if args.cmd == "render":
+        return _render(args)
+    if args.cmd == "cost":
+        return _cost(args)
     return _fps(args.preset, args.frames)
+
+
+def effect_costs(seed=3, size=192, frames=4, factors=(2, 4), spp=16):
+    """Seconds per frame (inputs at every factor and the target) of random scene
+    ``seed`` with no effect, each effect alone, and all of them; warm (compiling
+    excluded). Returns a list of ``(label, effects, seconds per frame)``."""
+    import dataclasses
+
+    from jtus.sim import random_scene
+    from jtus.sim.scene import EFFECTS
+    from jtus.sim.video import VideoRenderer
+
+    base = random_scene(seed, effects=EFFECTS)
+    rows = [("none", ())] + [(e, (e,)) for e in EFFECTS] + [("all", EFFECTS)]
+    out = []
+    for label, effects in rows:
+        r = VideoRenderer(dataclasses.replace(base, effects=effects), (size, size), factors, spp)
+        r.video("train", 0, 1)  # compile
+        t0 = time.perf_counter()
+        r.video("train", 0, frames)
+        out.append((label, effects, (time.perf_counter() - t0) / frames))
+    return out
+
+
+def _cost(args):
+    import platform
+
+    rows = effect_costs(args.seed, args.size, args.frames)
+    base = rows[0][2]
+    print(f"random_{args.seed}, {args.size}x{args.size}, inputs at 2x and 4x + 16-spp target, "
+          f"{args.frames} frames ({platform.processor() or platform.machine()})")
+    print("| effects | ms / frame | x no effect |\n| --- | --- | --- |")
+    for label, _, sec in rows:
+        print(f"| {label} | {sec * 1e3:.0f} | {sec / base:.2f} |")
+    if args.out:
+        from jtus.data.dataset import atomic_path
+        with atomic_path(args.out) as tmp, open(tmp, "w") as fh:
+            json.dump({"seed": args.seed, "size": args.size, "frames": args.frames,
+                       "machine": platform.processor() or platform.machine(),
+                       "rows": [{"effects": label, "ms_per_frame": sec * 1e3}
+                                for label, _, sec in rows]}, fh, indent=1)
+    return 0
 
 
 def _fps(preset_name, frames):

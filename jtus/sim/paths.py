@@ -34,7 +34,7 @@ class FrameState(NamedTuple):
     obj_yaw: np.ndarray       # [K]
     prev_obj_pos: np.ndarray
     prev_obj_yaw: np.ndarray
-    light: np.ndarray         # [3] direction of travel or position
+    light: np.ndarray         # [L,3] per light: direction of travel or position
     emission: np.ndarray      # [K]
     cut: bool                 # a camera cut at this frame
 
@@ -96,6 +96,15 @@ class _Timeline:
             r = self.radius * (1 - 0.35 * np.sin(phi / max(self.radius, 1e-6) * 4))
             eye = c + [r * np.cos(self.start), self.height, r * np.sin(self.start)]
             target = c
+        elif p.kind == "fly":
+            # a figure-of-eight through the scene above its centre, looking along the way
+            def at(b):
+                return c + [self.radius * np.sin(b), self.height + 0.25 * np.sin(3 * b),
+                            0.6 * self.radius * np.sin(2 * b)]
+            eye = at(a)
+            # look at a point between the path ahead and the centre (the objects)
+            target = 0.4 * at(a + 0.8) + 0.6 * c
+            target[1] = c[1]
         else:  # pan: fixed eye, the view swings
             eye = c + [self.radius * np.cos(self.start), self.height,
                        self.radius * np.sin(self.start)]
@@ -116,15 +125,17 @@ class _Timeline:
         return pos, yaw
 
     def light(self, t):
-        L = self.scene.light
-        v = np.asarray(L.vector, float)
-        if self.scene.has("moving_light"):
-            a = L.orbit_speed * t
-            ca, sa = np.cos(a), np.sin(a)
-            v = np.array([ca * v[0] - sa * v[2], v[1], sa * v[0] + ca * v[2]])
-        if L.kind == "directional":
-            v = v / np.linalg.norm(v)
-        return v
+        out = []
+        for L in (self.scene.light,) + tuple(self.scene.extra_lights):
+            v = np.asarray(L.vector, float)
+            if self.scene.has("moving_light"):
+                a = L.orbit_speed * t
+                ca, sa = np.cos(a), np.sin(a)
+                v = np.array([ca * v[0] - sa * v[2], v[1], sa * v[0] + ca * v[2]])
+            if L.kind == "directional":
+                v = v / np.linalg.norm(v)
+            out.append(v)
+        return np.stack(out)
 
     def emission(self, t):
         objs = self.scene.objects

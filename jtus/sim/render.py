@@ -127,6 +127,12 @@ class _Static:
         self.color = np.array([x.color for x in m], np.float32).reshape(-1, 3)
         self.tex = np.array([TEXTURES.index(x.texture) for x in m], np.int32)
         self.tex_scale = np.array([x.texture_scale for x in m], np.float32)
+        self.tex_seed = np.array([x.texture_seed for x in m], np.int32)
+        self.tex_aspect = np.array([x.texture_aspect for x in m], np.float32)
+        # albedo = lerp(dark, color, texture value); dark = color2 or color * (1 - contrast)
+        self.dark = np.array([x.color2 if x.color2 else tuple(c * (1 - x.contrast)
+                                                               for c in x.color) for x in m],
+                             np.float32).reshape(-1, 3)
         self.spec = np.array([x.specular for x in m], np.float32)
         self.shine = np.array([x.shininess for x in m], np.float32)
 
@@ -186,7 +192,7 @@ def make_renderer(scene: Scene, motion: bool = True):
     tex_kinds = sorted({TEXTURES[t] for t in st.tex if t != 0}) if has("texture_detail") else []
     near, far = scene.near, scene.far
     horizon, zenith = (jnp.asarray(c, jnp.float32) for c in scene.sky)
-    light = scene.light
+    lights = (scene.light,) + tuple(scene.extra_lights)
 
     def render(state, xy, pixel_angle):
         cam = state["camera"]
@@ -212,33 +218,41 @@ def make_renderer(scene: Scene, motion: bool = True):
             scale = jnp.asarray(st.tex_scale)[obj]
             width = dist * pixel_angle / cos * scale
             tex_id = jnp.asarray(st.tex)[obj]
+            tu, tv = u * scale, v * scale * jnp.asarray(st.tex_aspect)[obj]
+            seed = jnp.asarray(st.tex_seed)[obj]
             value = jnp.ones_like(u)
             for name in tex_kinds:
-                tv = textures.TEXTURE_FNS[name](u * scale, v * scale, width)
-                value = jnp.where(tex_id == TEXTURES.index(name), tv, value)
-            albedo = albedo * (0.15 + 0.85 * value[:, None])
-        lv = state["light"]
-        if light.kind == "directional":
-            ldir = jnp.broadcast_to(-lv / jnp.linalg.norm(lv), x.shape)
-            ldist = jnp.full(t.shape, _INF)
-            intensity = 1.0
-        else:
-            to_l = lv - x
-            ldist = jnp.linalg.norm(to_l, axis=-1)
-            ldir = to_l / ldist[:, None]
-            intensity = (20.0 / (1.0 + ldist * ldist))[:, None]
-        lcol = jnp.asarray(light.color, jnp.float32) * intensity
-        diffuse = jnp.maximum((n * ldir).sum(-1, keepdims=True), 0.0)
-        vis = 1.0
-        if has("shadows"):
-            occluded = _intersect(st, x + 1e-3 * n, ldir, pos, yaw, any_hit_before=ldist)
-            vis = jnp.where(occluded, 0.0, 1.0)[:, None]
-        color = albedo * (light.ambient + lcol * diffuse * vis)
-        if has("specular"):
-            h = ldir - dn
-            h = h / jnp.maximum(jnp.linalg.norm(h, axis=-1, keepdims=True), 1e-9)
-            lobe = jnp.maximum((n * h).sum(-1), 0.0) ** jnp.asarray(st.shine)[obj]
-            color = color + (jnp.asarray(st.spec)[obj] * lobe)[:, None] * lcol * vis
+                if name in textures.TEXTURE_FNS:
+                    tval = textures.TEXTURE_FNS[name](tu, tv, width)
+                else:
+                    tval = textures.SEEDED_FNS[name](tu, tv, width, seed)
+                value = jnp.where(tex_id == TEXTURES.index(name), tval, value)
+            dark = jnp.asarray(st.dark)[obj]
+            albedo = dark + (albedo - dark) * value[:, None]
+        color = albedo * lights[0].ambient
+        for i, light in enumerate(lights):
+            lv = state["light"][i]
+            if light.kind == "directional":
+                ldir = jnp.broadcast_to(-lv / jnp.linalg.norm(lv), x.shape)
+                ldist = jnp.full(t.shape, _INF)
+                intensity = 1.0
+            else:
+                to_l = lv - x
+                ldist = jnp.linalg.norm(to_l, axis=-1)
+                ldir = to_l / ldist[:, None]
+                intensity = (20.0 / (1.0 + ldist * ldist))[:, None]
+            lcol = jnp.asarray(light.color, jnp.float32) * intensity
+            diffuse = jnp.maximum((n * ldir).sum(-1, keepdims=True), 0.0)
+            vis = 1.0
+            if has("shadows"):
+                occluded = _intersect(st, x + 1e-3 * n, ldir, pos, yaw, any_hit_before=ldist)
+                vis = jnp.where(occluded, 0.0, 1.0)[:, None]
+            color = color + albedo * lcol * diffuse * vis
+            if has("specular"):
+                h = ldir - dn
+                h = h / jnp.maximum(jnp.linalg.norm(h, axis=-1, keepdims=True), 1e-9)
+                lobe = jnp.maximum((n * h).sum(-1), 0.0) ** jnp.asarray(st.shine)[obj]
+                color = color + (jnp.asarray(st.spec)[obj] * lobe)[:, None] * lcol * vis
         if has("emissive_flicker"):
             color = color + state["emission"][st.index][obj][:, None] * jnp.asarray(st.color)[obj]
         sky = horizon + (zenith - horizon) * jnp.clip(dn[:, 1:2], 0.0, 1.0)

@@ -18,8 +18,9 @@ from typing import Optional
 EFFECTS = ("camera_motion", "object_motion", "thin_geometry", "texture_detail", "shadows",
            "specular", "moving_light", "emissive_flicker", "camera_cut")
 KINDS = ("plane", "box", "sphere", "rod")
-TEXTURES = ("none", "checker", "stripes", "zoneplate")
-PATHS = ("orbit", "dolly", "pan")
+TEXTURES = ("none", "checker", "stripes", "zoneplate", "fbm", "fbm_aniso", "bricks", "tiles",
+            "glyphs", "wood", "marble", "dots")
+PATHS = ("orbit", "dolly", "pan", "fly")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -27,6 +28,10 @@ class Material:
     color: tuple = (0.7, 0.7, 0.7)       # linear RGB albedo
     texture: str = "none"                 # used only with texture_detail
     texture_scale: float = 1.0            # texture periods per metre
+    texture_seed: int = 0                 # variant of the seeded textures (noise, glyphs...)
+    texture_aspect: float = 1.0           # v periods per u period
+    contrast: float = 0.85                # albedo = color * (1 - contrast + contrast * value)
+    color2: tuple = ()                    # or, when given, lerp(color2, color, value)
     specular: float = 0.0                 # Blinn-Phong weight, used only with specular
     shininess: float = 32.0
     emission: float = 0.0                 # peak emitted radiance, used only with emissive_flicker
@@ -76,6 +81,8 @@ class Scene:
     objects: tuple
     light: Light = Light()
     path: Path = Path()
+    extra_lights: tuple = ()              # more Lights (point or directional): diffuse,
+                                          # shadows and specular as the first; its ambient only
     sky: tuple = ((0.75, 0.8, 0.9), (0.3, 0.45, 0.75))  # horizon, zenith
     near: float = 0.1
     far: float = 100.0
@@ -94,8 +101,16 @@ class Scene:
                                  f"got {o.material.texture!r}")
         if self.path.kind not in PATHS:
             raise ValueError(f"path.kind: expected one of {PATHS}, got {self.path.kind!r}")
-        if self.light.kind not in ("directional", "point"):
-            raise ValueError(f"light.kind: expected directional or point, got {self.light.kind!r}")
+        for where, light in [("light", self.light)] + [
+                (f"extra_lights[{i}]", x) for i, x in enumerate(self.extra_lights)]:
+            if light.kind not in ("directional", "point"):
+                raise ValueError(f"{where}.kind: expected directional or point, "
+                                 f"got {light.kind!r}")
+        for i, o in enumerate(self.objects):
+            c2 = o.material.color2
+            if c2 and len(c2) != 3:
+                raise ValueError(f"objects[{i}].material.color2: expected () or 3 numbers, "
+                                 f"got {c2!r}")
         if not 0 < self.near < self.far:
             raise ValueError(f"near/far: expected 0 < near < far, got {self.near}, {self.far}")
 
@@ -124,6 +139,8 @@ def _build(cls, data, where):
             v = _build(Path, v, f"{where}.path")
         elif k == "objects":
             v = tuple(_build(Object, o, f"{where}.objects[{i}]") for i, o in enumerate(v))
+        elif k == "extra_lights":
+            v = tuple(_build(Light, o, f"{where}.extra_lights[{i}]") for i, o in enumerate(v))
         elif isinstance(v, list):
             v = tuple(tuple(x) if isinstance(x, list) else x for x in v)
         kw[k] = v

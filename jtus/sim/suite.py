@@ -92,8 +92,14 @@ NAMES = tuple(_SUITE)
 
 
 def get(name: str) -> Scene:
+    """A built-in scene by name, or ``random_<seed>`` from the randomized family."""
+    from jtus.sim import randomized
+
+    seed = randomized.seed_of(name)
+    if seed is not None:
+        return randomized.random_scene(seed)
     if name not in _SUITE:
-        raise ValueError(f"scene: expected one of {NAMES}, got {name!r}")
+        raise ValueError(f"scene: expected one of {NAMES} or random_<seed>, got {name!r}")
     layout, effects, path, light = _SUITE[name]
     return Scene(name, tuple(effects), _LAYOUTS[layout](), light, path)
 

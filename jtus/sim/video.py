@@ -29,6 +29,9 @@ def _grid(h, w):
     return j.reshape(-1), i.reshape(-1)
 
 
+CHUNK = 16384
+
+
 class VideoRenderer:
     """Renders the frames of a scene; compiles the scene's renderer once."""
 
@@ -41,9 +44,22 @@ class VideoRenderer:
         self.factors = tuple(factors)
         self.spp = spp
         self.spp_match = spp_match
-        self._input = render.make_renderer(scene, motion=True)
-        self._target = render.make_renderer(scene, motion=False)
         self.offsets = subsample_offsets(spp)
+        # Every call renders CHUNK rays (the last chunk padded): one compilation per
+        # scene serves the inputs of every factor and the target.
+        self.chunk = min(CHUNK, self.H * self.W)
+        self._render = render.make_renderer(scene, motion=True)
+
+    def _cast(self, state: paths.FrameState, xy):
+        """Render normalized screen points ``[N,2]`` in fixed-size chunks: a dict of
+        ``[N,...]`` numpy arrays."""
+        n, c = len(xy), self.chunk
+        pad = -n % c
+        xy = np.concatenate([np.asarray(xy, np.float32), np.full((pad, 2), 0.5, np.float32)])
+        arr = render.state_arrays(state)
+        angle = self.pixel_angle(state)
+        parts = [self._render(arr, jnp.asarray(xy[i:i + c]), angle) for i in range(0, len(xy), c)]
+        return {k: np.concatenate([np.asarray(p[k]) for p in parts])[:n] for k in parts[0]}
 
     def pixel_angle(self, state: paths.FrameState):
         return render.pixel_angle(state.camera.tan_half[1], self.H, self.spp_match)
@@ -53,39 +69,35 @@ class VideoRenderer:
         h, w = self.H // factor, self.W // factor
         jx, jy = _grid(h, w)
         xy = np.stack([(jx + jitter[0]) / w, (jy + jitter[1]) / h], -1)
-        out = self._input(render.state_arrays(state), jnp.asarray(xy), self.pixel_angle(state))
-        return (np.asarray(out["color"]).reshape(h, w, 3),
-                np.asarray(out["depth"]).reshape(h, w, 1),
-                (np.asarray(out["motion"]) * np.array([w, h], np.float32)).reshape(h, w, 2))
+        out = self._cast(state, xy)
+        return (out["color"].reshape(h, w, 3), out["depth"].reshape(h, w, 1),
+                (out["motion"] * np.array([w, h], np.float32)).reshape(h, w, 2))
 
     def points(self, state, xy):
         """Render arbitrary normalized screen points ``[N,2]`` (one sample each)."""
-        return self._input(render.state_arrays(state), jnp.asarray(xy, jnp.float32),
-                           self.pixel_angle(state))
+        return self._cast(state, xy)
 
     def target(self, state: paths.FrameState):
         """The ``spp``-sample box-filtered target at ``H x W``."""
         jx, jy = _grid(self.H, self.W)
-        arr = render.state_arrays(state)
-        angle = self.pixel_angle(state)
-        acc = 0.0
-        for ox, oy in self.offsets:
-            xy = np.stack([(jx + ox) / self.W, (jy + oy) / self.H], -1)
-            acc = acc + self._target(arr, jnp.asarray(xy, jnp.float32), angle)["color"]
-        return np.asarray(acc / len(self.offsets)).reshape(self.H, self.W, 3)
+        xy = np.concatenate([np.stack([(jx + ox) / self.W, (jy + oy) / self.H], -1)
+                             for ox, oy in self.offsets])
+        col = self._cast(state, xy)["color"].reshape(len(self.offsets), self.H * self.W, 3)
+        return col.mean(0, dtype=np.float64).astype(np.float32).reshape(self.H, self.W, 3)
 
-    def video(self, split, index, length, progress=None):
+    def video(self, split, index, length, progress=None, jitter="thesis", jitter_phase=0):
         """A dict: ``target [T,H,W,3]``, ``reset [T]``, and per factor ``x{f}`` a dict
-        of ``color``, ``depth``, ``motion``, ``jitter``."""
+        of ``color``, ``depth``, ``motion``, ``jitter``. ``jitter`` names the sequence
+        (``jtus.sampling.jitter_sequence``); frame t uses element ``t + jitter_phase``."""
         states = paths.timeline(self.scene, split, index, length, self.W / self.H)
         out = {"target": [], "reset": [], **{f"x{f}": {"color": [], "depth": [], "motion": [],
                                                        "jitter": []} for f in self.factors}}
-        seqs = {f: jitter_sequence("thesis", f) for f in self.factors}
+        seqs = {f: jitter_sequence(jitter, f) for f in self.factors}
         for t, st in enumerate(states):
             out["target"].append(self.target(st))
             out["reset"].append(t == 0 or st.cut)
             for f in self.factors:
-                jit = seqs[f][t % len(seqs[f])]
+                jit = seqs[f][(t + jitter_phase) % len(seqs[f])]
                 c, d, m = self.input(st, f, jit)
                 g = out[f"x{f}"]
                 g["color"].append(c)
@@ -106,4 +118,33 @@ def render_video(scene: Scene, split, index, length, size=(128, 128), factors=(2
     return VideoRenderer(scene, size, factors, spp, spp_match).video(split, index, length)
 
 
-__all__ = ["VideoRenderer", "render_video", "subsample_offsets"]
+def static_hold(scene: Scene, size, factor, jitter, length, spp=16, split="test"):
+    """A hold: the first frame of ``scene``'s video, unchanged for ``length`` frames,
+    sampled with jitter sequence ``jitter``; zero motion, reset on frame 0 only.
+
+    Returns ``(Frame [T,1,...] numpy, targets [T,1,H,W,3])``. Only the distinct jitter
+    positions are rendered (a hold is the hard case of convergence: whatever a
+    temporal up-sampler shows after the jitter cycle is its steady state)."""
+    from jtus.frame import Frame
+
+    r = VideoRenderer(scene, (size, size), (factor,), spp)
+    st = paths.timeline(scene, split, 0, 1, 1.0)[0]
+    target = r.target(st)
+    seq = jitter_sequence(jitter, factor).astype(np.float32)
+    cache, cols = {}, []
+    for t in range(length):
+        j = seq[t % len(seq)]
+        if tuple(j) not in cache:
+            color, depth, _ = r.input(st, factor, j)
+            cache[tuple(j)] = (color, depth)
+        cols.append(cache[tuple(j)])
+    color = np.stack([c for c, _ in cols])[:, None]
+    depth = np.stack([d for _, d in cols])[:, None]
+    reset = np.zeros((length, 1), bool)
+    reset[0] = True
+    jit = np.stack([seq[t % len(seq)] for t in range(length)])[:, None]
+    frame = Frame(color, depth, np.zeros(color.shape[:-1] + (2,), np.float32), jit, reset)
+    return frame, np.broadcast_to(target, (length, 1) + target.shape).astype(np.float32)
+
+
+__all__ = ["VideoRenderer", "render_video", "static_hold", "subsample_offsets"]

@@ -1,0 +1,64 @@
+"""Every system on the independent-renderer clips (``render_mitsuba.py``), per clip and
+pooled over all frames, per factor.
+
+    python experiments/external/evaluate_external.py --models jau tus shipped
+    python experiments/external/evaluate_external.py --models jau tus shipped \
+        mine=runs/diverse-x{f}/checkpoint.msgpack --name external-mine
+
+Reads ``data/external/{clip}-x{f}.h5``; writes ``docs/results/<name>/`` (default
+``external``). Held-out data: evaluate on it, never train or tune on it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+from common import write  # noqa: E402
+
+from jtus import evaluate  # noqa: E402
+
+CLIPS = ("library", "fence", "turntable")
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--models", nargs="+", default=["jau", "tus", "shipped"])
+    p.add_argument("--data", default="data/external")
+    p.add_argument("--name", default="external")
+    args = p.parse_args()
+    rows, data = [], {}
+    for f in (4, 2):
+        entries = [e for e in (evaluate.resolve(s, f) for s in args.models) if e]
+        pooled = {e.label: {"psnr": [], "ssim": [], "temporal": []} for e in entries}
+        for clip in CLIPS:
+            path = os.path.join(args.data, f"{clip}-x{f}.h5")
+            if not os.path.exists(path):
+                raise SystemExit(f"{path} is missing: python experiments/external/render_mitsuba.py")
+            per_frame, _ = evaluate.evaluate(entries, path, f, progress=False)
+            for lab, d in per_frame.items():
+                s = evaluate.summarize({lab: d})[lab]
+                data.setdefault(str(f), {}).setdefault(clip, {})[lab] = s
+                rows.append(f"| {f}x | {clip} | {lab} | {s['psnr']:.2f} | {s['ssim']:.4f} | "
+                            f"{s['temporal']:.5f} |")
+                for k in pooled[lab]:
+                    pooled[lab][k].append(d[k])
+        for lab, d in pooled.items():
+            s = evaluate.summarize({lab: {k: np.concatenate(v) for k, v in d.items()}})[lab]
+            data[str(f)].setdefault("all", {})[lab] = s
+            rows.append(f"| {f}x | **all** | {lab} | {s['psnr']:.2f} | {s['ssim']:.4f} | "
+                        f"{s['temporal']:.5f} |")
+    table = ("| factor | clip | method | PSNR (dB) | SSIM | temporal error |\n"
+             "| --- | --- | --- | --- | --- | --- |\n" + "\n".join(rows))
+    write(args.name, table, data, note="Clips rendered by Mitsuba 3 "
+          "(`python experiments/external/render_mitsuba.py`), 32 frames each, 256x256; "
+          "**all** pools every frame of the three clips.")
+
+
+if __name__ == "__main__":
+    main()
