@@ -143,6 +143,28 @@ class Config:
                                   # model and factor); the optimizer starts fresh
 
     def __post_init__(self):
+        import math
+
+        positive = ("factor", "seq_len", "batch", "crop", "epochs", "steps_per_epoch",
+                    "val_batches", "val_videos")
+        for name in positive:
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+                raise ValueError(f"{name}: expected a positive integer, got {v!r}")
+        if self.crop % 4 or self.crop % self.factor:
+            raise ValueError(f"crop: expected a multiple of 4 and of factor {self.factor}, "
+                             f"got {self.crop}")
+        for name in ("lr", "theta", "lr_end", "clip_norm", "perceptual_weight"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ValueError(f"{name}: expected a finite number, got {v!r}")
+        if self.lr <= 0:
+            raise ValueError(f"lr: expected > 0, got {self.lr}")
+        if not 0 <= self.lr_end <= 1:
+            raise ValueError(f"lr_end: expected a fraction of lr in [0, 1], got {self.lr_end}")
+        if self.clip_norm < 0 or self.warmup_steps < 0:
+            raise ValueError(f"clip_norm, warmup_steps: expected >= 0, got {self.clip_norm}, "
+                             f"{self.warmup_steps}")
         if self.mode not in ("bptt", "tbptt"):
             raise ValueError(f"mode: expected bptt or tbptt, got {self.mode!r}")
         if self.mode == "bptt" and not 1 <= self.loss_frames <= self.seq_len:
@@ -307,11 +329,14 @@ def load_checkpoint(workdir, ts: TrainState):
 
 
 def load_params(path, config_path=None):
-    """Parameters and training config of a checkpoint written by ``train``."""
+    """Parameters and training config of a checkpoint written by ``train`` (its config
+    is ``config.json`` beside it) or by ``export_params`` (``<base>.json``)."""
     from flax import serialization
 
     workdir = os.path.dirname(os.path.abspath(path))
-    config_path = config_path or os.path.join(workdir, "config.json")
+    beside = os.path.splitext(path)[0] + ".json"
+    config_path = config_path or (beside if os.path.exists(beside)
+                                  else os.path.join(workdir, "config.json"))
     config = config_from_json(config_path)
     model = _model(config)
     params = model.init(jax.random.PRNGKey(0))
@@ -391,9 +416,48 @@ def plot_history(history, path):
 # ---------------------------------------------------------------- the loop
 
 
-def train_and_evaluate(config: Config, workdir, resume=False, progress=True, stop_after=None):
+def check_data(config: Config):
+    """Refuse, before anything is written, a dataset this config cannot train on: the
+    factor, the crop against the frame size, the window against the videos' lengths,
+    empty train or validation splits."""
+    from jtus.data.dataset import Dataset
+
+    with Dataset(config.dataset) as ds:
+        if config.factor not in ds.factors:
+            raise ValueError(f"factor: {config.dataset} holds factors {ds.factors}, got "
+                             f"{config.factor}")
+        if config.crop > min(ds.size):
+            raise ValueError(f"crop: {config.crop} exceeds the frame size "
+                             f"{ds.size[0]}x{ds.size[1]} of {config.dataset}")
+        window = _plan(config)[0]
+        for split, need in (("train", config.seq_len), ("val", window)):
+            names = ds.videos(split)
+            if not names:
+                raise ValueError(f"dataset: no videos in split {split!r} of {config.dataset}")
+            shortest = min(ds.file[f"{split}/{n}/target"].shape[0] for n in names)
+            if need > shortest:
+                raise ValueError(f"seq_len: {need} frames exceed the shortest {split} video "
+                                 f"of {config.dataset} ({shortest} frames)")
+
+
+def _finite_or_stop(stats, workdir, epoch, step, last_good):
+    loss, gnorm = float(stats["loss"]), float(stats["grad_norm"])
+    if not (np.isfinite(loss) and np.isfinite(gnorm)):
+        kept = (f"the checkpoint of epoch {last_good} is kept" if last_good
+                else "no checkpoint was written")
+        raise ValueError(f"training: non-finite loss ({loss}) or gradient norm ({gnorm}) at "
+                         f"epoch {epoch}, step {step}; stopped, {kept} in {workdir} (NaN or Inf "
+                         f"in the data, or a learning rate too high)")
+    return loss
+
+
+def train_and_evaluate(config: Config, workdir, resume=False, progress=True, stop_after=None,
+                       overwrite=False):
     """Train ``config`` into ``workdir``; returns ``(params, history)``.
 
+    A workdir that holds a run is continued with ``resume`` or replaced with
+    ``overwrite``, never silently mixed; everything is checked before the first write.
+    A non-finite loss or gradient stops the run and leaves the last good checkpoint.
     ``stop_after``: stop (as if killed) after that many epochs of this call, for tests.
     """
     from tqdm import tqdm
@@ -405,8 +469,19 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
     if config.model not in models.TRAINABLE:
         raise ValueError(f"model: {config.model!r} has no parameters to train; "
                          f"trainable: {models.TRAINABLE}")
-    os.makedirs(workdir, exist_ok=True)
+    ckpt = os.path.join(workdir, "checkpoint.msgpack")
+    if os.path.isfile(workdir):
+        raise ValueError(f"workdir: {workdir} is a file; expected a folder")
+    if os.path.exists(ckpt) and not (resume or overwrite):
+        raise ValueError(f"workdir: {workdir} holds a run (checkpoint.msgpack); pass --resume "
+                         f"to continue it or --overwrite to start it again")
     ensure_dataset(config, progress)
+    check_data(config)
+    os.makedirs(workdir, exist_ok=True)
+    if overwrite and not resume:  # the old run goes only once the new one is valid
+        for name in ("checkpoint.msgpack", "metrics.json", "metrics.csv", "training.png"):
+            if os.path.exists(os.path.join(workdir, name)):
+                os.remove(os.path.join(workdir, name))
     model, loss_fn, opt = _model(config), _loss(config), _optimizer(config)
     params = model.init(jax.random.PRNGKey(config.seed))
     if config.init_from:
@@ -459,7 +534,8 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
                 for w in windows:
                     sl = jax.tree_util.tree_map(lambda x: x[w.start:w.stop], (frames, targets))
                     ts, carry, stats = step_fn(ts, carry, *sl)
-                    run.append(float(stats["loss"]))
+                    run.append(_finite_or_stop(stats, workdir, epoch, len(run) + 1,
+                                               epoch - 1 if epoch > 1 else 0))
                 bar.set_postfix(loss=f"{np.mean(run[-20:]):.4f}")
             val = [float(eval_loss(ts.params, _start_carry(model, *c), *c))
                    for c in (jax.tree_util.tree_map(jnp.asarray, c) for c in val_crops)]
@@ -501,6 +577,8 @@ def _parser():
     p.add_argument("--preset", choices=tuple(PRESETS), default="default")
     p.add_argument("--workdir", default=None, help="default: runs/<preset>-x<factor>")
     p.add_argument("--resume", action="store_true")
+    p.add_argument("--overwrite", action="store_true",
+                   help="start again in a --workdir that holds a run")
     p.add_argument("--no-eval", action="store_true",
                    help="skip the final comparison with JAU, TUS and the shipped weights")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -529,10 +607,13 @@ def config_from_args(args) -> Config:
 
 def main(argv=None):
     args = _parser().parse_args(argv)
+    from jtus.cli import sigterm_as_exit
+    sigterm_as_exit()
     try:
         config = config_from_args(args)
         workdir = args.workdir or os.path.join("runs", f"{args.preset}-x{config.factor}")
-        train_and_evaluate(config, workdir, resume=args.resume, progress=not args.quiet)
+        train_and_evaluate(config, workdir, resume=args.resume, progress=not args.quiet,
+                           overwrite=args.overwrite)
     except (ValueError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

@@ -86,6 +86,8 @@ def main(argv=None):
     p.add_argument("--format", choices=exr.IMAGE_FORMATS, default="png")
     p.add_argument("--mp4", help="also write input | output side by side to this MP4")
     args = p.parse_args(argv)
+    from jtus.cli import sigterm_as_exit
+    sigterm_as_exit()
     try:
         entry = resolve(args.model, args.factor)
         if entry is None:

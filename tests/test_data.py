@@ -202,3 +202,22 @@ def test_streaming_source_matches_interface():
     frames, targets = src.crops("train", 4, 2, 3, 16, np.random.default_rng(0))
     assert frames.color.shape == (3, 2, 4, 4, 3) and targets.shape == (3, 2, 16, 16, 3)
     assert frames.reset[0].all() and frames.color.dtype == np.float32
+
+
+def test_sigterm_during_generate_leaves_nothing(tmp_path):
+    """SIGTERM unwinds like Ctrl-C (jtus.cli.sigterm_as_exit): the temporary file goes."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "t.h5"
+    proc = subprocess.Popen([sys.executable, "-m", "jtus.data", "generate", "--preset", "tiny",
+                             "--out", str(out), "--quiet"], cwd=os.getcwd())
+    deadline = time.time() + 120
+    while time.time() < deadline and not [f for f in os.listdir(tmp_path) if f.endswith(".tmp")]:
+        time.sleep(0.05)
+    assert [f for f in os.listdir(tmp_path) if f.endswith(".tmp")], "generate never started"
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(60) == 128 + signal.SIGTERM
+    assert os.listdir(tmp_path) == []

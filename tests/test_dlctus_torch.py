@@ -156,6 +156,26 @@ def test_load_checkpoint_formats(tmp_path):
             np.testing.assert_array_equal(a, b)
 
 
+def test_load_checkpoint_pickled_with_numpy1(tmp_path):
+    """The thesis's checkpoints were pickled with numpy 1.x, whose scalars pickle as
+    ``numpy.core.multiarray.scalar``; numpy 2 writes ``numpy._core...``. The legacy
+    (non-zip) format keeps the global's name as plain text, so the file a numpy 1.x
+    torch.save writes is made here by renaming it in the stream."""
+    net = _torch_net()
+    path = tmp_path / "numpy1.pt"
+    torch.save({"epoch": 200, "model_state_dict": net.state_dict(), "loss": np.float64(0.01)},
+               path, _use_new_zipfile_serialization=False)
+    raw = path.read_bytes()
+    assert b"numpy._core.multiarray\nscalar" in raw
+    path.write_bytes(raw.replace(b"numpy._core.multiarray\nscalar",
+                                 b"numpy.core.multiarray\nscalar"))
+    assert b"numpy._core" not in path.read_bytes()
+    got = dlctus.load_torch_checkpoint(path)
+    want = dlctus.params_from_torch(net.state_dict())
+    for a, b in zip(jax.tree_util.tree_leaves(want), jax.tree_util.tree_leaves(got)):
+        np.testing.assert_array_equal(a, b)
+
+
 class _Evil:
     def __reduce__(self):
         return (print, ("this must never run",))

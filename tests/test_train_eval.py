@@ -105,3 +105,44 @@ def test_cli_train_evaluate_upsample(tiny_data, tmp_path, capsys):
     assert "k1 <= k2" in capsys.readouterr().err
     assert evaluate.main(["--dataset", tiny_data, "--models", "nerf", "--out",
                           str(out), "--quiet"]) == 2
+
+
+def test_a_failed_command_leaves_an_existing_run_alone(tiny_data, tmp_path, capsys):
+    work = tmp_path / "t1"
+    base = ["--preset", "tiny", "--dataset", tiny_data, "--workdir", str(work), "--quiet",
+            "--no-eval", "--epochs", "1"]
+    assert train.main(base) == 0
+    before = {n: (work / n).read_bytes() for n in os.listdir(work)}
+    for extra, msg in ((["--factor", "2", "--crop", "64"], "holds a run"),
+                       (["--overwrite", "--crop", "64"], "crop: 64 exceeds"),
+                       (["--overwrite", "--seq-len", "20"], "shortest train video"),
+                       (["--val-videos", "0"], "val_videos"),
+                       (["--lr", "nan"], "lr"), (["--epochs", "0"], "epochs"),
+                       (["--steps-per-epoch", "0"], "steps_per_epoch"),
+                       (["--batch", "0"], "batch"), (["--crop", "0"], "crop"),
+                       (["--seq-len", "0"], "seq_len")):
+        capsys.readouterr()
+        assert train.main(base + extra) == 2, extra
+        assert msg in capsys.readouterr().err, extra
+    assert {n: (work / n).read_bytes() for n in os.listdir(work)} == before
+    # a bad new run writes nothing at all
+    assert train.main(base[:4] + ["--workdir", str(tmp_path / "new"), "--quiet", "--no-eval",
+                                  "--crop", "64"]) == 2
+    assert not (tmp_path / "new").exists()
+    # --overwrite starts again
+    assert train.main(base + ["--overwrite", "--lr", "0.002"]) == 0
+    assert json.loads((work / "config.json").read_text())["lr"] == 0.002
+
+
+def test_non_finite_data_stops_training_without_a_checkpoint(tiny_data, tmp_path):
+    import h5py
+    import shutil
+
+    bad = tmp_path / "nan.h5"
+    shutil.copyfile(tiny_data, bad)
+    with h5py.File(bad, "r+") as fh:
+        for name in fh["train"]:
+            fh[f"train/{name}/x4/color"][...] = np.nan
+    with pytest.raises(ValueError, match="non-finite loss.*no checkpoint was written"):
+        train.train_and_evaluate(_config(str(bad)), tmp_path / "run", progress=False)
+    assert not (tmp_path / "run" / "checkpoint.msgpack").exists()

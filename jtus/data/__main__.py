@@ -92,6 +92,8 @@ def _info(args):
 
 def main(argv=None):
     args = _parser().parse_args(argv)
+    from jtus.cli import sigterm_as_exit
+    sigterm_as_exit()
     try:
         if args.cmd == "generate":
             dataset.generate(args.preset, args.out, progress=not args.quiet)

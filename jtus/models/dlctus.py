@@ -317,9 +317,14 @@ def load_torch_checkpoint(path, config: Config = Config()):
     allowed = [np.dtype, type(np.dtype(np.float64)), type(np.dtype(np.float32)),
                type(np.dtype(np.int64)), type(np.dtype(np.int32))]
     try:
-        allowed.append(np._core.multiarray.scalar)
+        scalar = np._core.multiarray.scalar
     except AttributeError:  # numpy < 2
-        allowed.append(np.core.multiarray.scalar)
+        scalar = np.core.multiarray.scalar
+    # The unpickler matches globals by the name in the file: numpy 1.x (the thesis's
+    # released checkpoints) wrote numpy.core.multiarray.scalar, numpy 2 writes
+    # numpy._core.multiarray.scalar. Both names are allowed, for the same function.
+    allowed += [(scalar, "numpy.core.multiarray.scalar"),
+                (scalar, "numpy._core.multiarray.scalar")]
     try:
         with torch.serialization.safe_globals(allowed):
             obj = torch.load(path, map_location="cpu", weights_only=True)

@@ -180,6 +180,8 @@ def main(argv=None):
     c.add_argument("--frames", type=int, default=4)
     c.add_argument("--out", help="write the table as JSON here")
     args = p.parse_args(argv)
+    from jtus.cli import sigterm_as_exit
+    sigterm_as_exit()
     try:
         return _dispatch(args)
     except (ValueError, FileNotFoundError) as e:
@@ -238,12 +240,14 @@ def effect_costs(seed=3, size=192, frames=4, factors=(2, 4), spp=16):
 
 
 def _cost(args):
-    import platform
+    from jtus.bench import hardware
 
+    hw = hardware()
+    machine = f"{hw['cpu']}, {hw['cores']} cores, JAX {hw['jax']} on {hw['backend']}"
     rows = effect_costs(args.seed, args.size, args.frames)
     base = rows[0][2]
     print(f"random_{args.seed}, {args.size}x{args.size}, inputs at 2x and 4x + 16-spp target, "
-          f"{args.frames} frames ({platform.processor() or platform.machine()})")
+          f"{args.frames} frames ({machine})")
     print("| effects | ms / frame | x no effect |\n| --- | --- | --- |")
     for label, _, sec in rows:
         print(f"| {label} | {sec * 1e3:.0f} | {sec / base:.2f} |")
@@ -251,7 +255,7 @@ def _cost(args):
         from jtus.data.dataset import atomic_path
         with atomic_path(args.out) as tmp, open(tmp, "w") as fh:
             json.dump({"seed": args.seed, "size": args.size, "frames": args.frames,
-                       "machine": platform.processor() or platform.machine(),
+                       "machine": machine,
                        "rows": [{"effects": label, "ms_per_frame": sec * 1e3}
                                 for label, _, sec in rows]}, fh, indent=1)
     return 0
