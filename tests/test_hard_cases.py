@@ -13,7 +13,7 @@ import pytest
 
 from jtus import metrics, models, rollout, sim
 from jtus.sampling.jitter import VARIETY
-from jtus.sim.video import static_hold
+from jtus.sim.video import VideoRenderer, static_hold
 
 T = 384
 
@@ -21,7 +21,9 @@ T = 384
 @pytest.fixture(scope="module")
 def holds():
     scene = sim.get_scene("textures")  # texture detail, camera still
-    return {(f, j): static_hold(scene, 128, f, j, T) for f in (4, 2) for j in VARIETY}
+    r = VideoRenderer(scene, (128, 128), (4, 2), 16)  # one compilation for all holds
+    return {(f, j): static_hold(scene, 128, f, j, T, renderer=r) for f in (4, 2)
+            for j in VARIETY}
 
 
 def _psnr_curve(name, factor, frames, targets):

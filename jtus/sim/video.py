@@ -118,16 +118,19 @@ def render_video(scene: Scene, split, index, length, size=(128, 128), factors=(2
     return VideoRenderer(scene, size, factors, spp, spp_match).video(split, index, length)
 
 
-def static_hold(scene: Scene, size, factor, jitter, length, spp=16, split="test"):
+def static_hold(scene: Scene, size, factor, jitter, length, spp=16, split="test",
+                renderer=None):
     """A hold: the first frame of ``scene``'s video, unchanged for ``length`` frames,
     sampled with jitter sequence ``jitter``; zero motion, reset on frame 0 only.
 
     Returns ``(Frame [T,1,...] numpy, targets [T,1,H,W,3])``. Only the distinct jitter
     positions are rendered (a hold is the hard case of convergence: whatever a
-    temporal up-sampler shows after the jitter cycle is its steady state)."""
+    temporal up-sampler shows after the jitter cycle is its steady state).
+    ``renderer``: a ``VideoRenderer`` of this scene to reuse (one compilation for many
+    holds); its size and spp then apply."""
     from jtus.frame import Frame
 
-    r = VideoRenderer(scene, (size, size), (factor,), spp)
+    r = renderer or VideoRenderer(scene, (size, size), (factor,), spp)
     st = paths.timeline(scene, split, 0, 1, 1.0)[0]
     target = r.target(st)
     seq = jitter_sequence(jitter, factor).astype(np.float32)
