@@ -164,7 +164,8 @@ def test_exr_import_errors(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "depth needs channels ['Z']" in err and "depth.V" in err
     rc = data_cli.main(["import-exr", "--input", str(lr), "--target", str(hr), "--factor", "2",
-                        "--depth", "depth.V", "--motion", "vec.u,vec.v", "--out", str(out)])
+                        "--depth", "depth.V", "--depth-kind", "view", "--motion", "vec.u,vec.v",
+                        "--out", str(out)])
     assert rc == 2 and "not factor 2" in capsys.readouterr().err
     (lr / "f000.exr").write_bytes(b"broken")
     with pytest.raises(ValueError, match="f000.exr: not a readable EXR"):
@@ -218,6 +219,83 @@ def test_sigterm_during_generate_leaves_nothing(tmp_path):
     while time.time() < deadline and not [f for f in os.listdir(tmp_path) if f.endswith(".tmp")]:
         time.sleep(0.05)
     assert [f for f in os.listdir(tmp_path) if f.endswith(".tmp")], "generate never started"
+    time.sleep(0.5)  # inside the rendering
     proc.send_signal(signal.SIGTERM)
-    assert proc.wait(60) == 128 + signal.SIGTERM
+    assert proc.wait(120) == 128 + signal.SIGTERM
     assert os.listdir(tmp_path) == []
+
+
+def test_exr_import_refuses_bad_values_and_frame_numbering(tmp_path, capsys):
+    """Each defect: an error naming the file and field, exit 2, no file written."""
+    import shutil
+
+    video = sim.render_video(sim.get_scene("objects"), "test", 0, 3, size=(16, 16), factors=(4,),
+                             spp=1)
+    lr, hr = _exr_sequence(tmp_path, video, 4)
+    spec = tmp_path / "spec.json"
+    spec.write_text('{"depth": "depth.V", "depth_kind": "view", "motion": ["vec.u", "vec.v"],'
+                    ' "motion_units": "uv", "motion_y_up": true, "motion_negate": true}')
+    out = tmp_path / "x.h5"
+
+    def run(lr_dir=lr, hr_dir=hr, sidecar=spec):
+        capsys.readouterr()
+        rc = data_cli.main(["import-exr", "--input", str(lr_dir), "--target", str(hr_dir),
+                            "--factor", "4", "--sidecar", str(sidecar), "--out", str(out)])
+        return rc, capsys.readouterr().err
+
+    assert run()[0] == 0 and out.exists()
+    out.unlink()
+
+    def with_channel(name, value, folder=lr, frame="f001.exr"):
+        d = tmp_path / f"bad-{name}-{len(os.listdir(tmp_path))}"
+        shutil.copytree(folder, d)
+        chans, _ = exr.read_exr(d / frame)
+        chans[name] = np.full_like(chans[name], value)
+        exr.write_exr(d / frame, chans)
+        return d
+
+    for name, value, msg in (("R", np.nan, "color has"), ("vec.u", np.inf, "motion has"),
+                             ("depth.V", -1.0, "depth (view) has values below 0"),
+                             ("depth.V", np.nan, "depth (view) has")):
+        rc, err = run(lr_dir=with_channel(name, value))
+        assert rc == 2 and msg in err and "f001.exr" in err, (name, err)
+        assert not out.exists()
+    rc, err = run(hr_dir=with_channel("G", np.nan, folder=hr))
+    assert rc == 2 and "target has 256 NaN" in err
+    for jit, msg in (("[1.2, 0.3]", "jitter: expected values in [0, 1)"),
+                     ("[NaN, 0.3]", "NaN")):
+        bad = tmp_path / "jit.json"
+        bad.write_text(spec.read_text()[:-1] + f', "jitter": {jit}}}')
+        rc, err = run(sidecar=bad)
+        assert rc == 2 and msg in err, err
+    # frame numbers, not text order: f2 comes before f10; a gap or a mismatch is refused
+    d_lr, d_hr = tmp_path / "num-lr", tmp_path / "num-hr"
+    for src, dst in ((lr, d_lr), (hr, d_hr)):
+        dst.mkdir()
+        for t, newname in enumerate(("frame2.exr", "frame9.exr", "frame10.exr")):
+            shutil.copyfile(src / f"f{t:03d}.exr", dst / newname)
+    rc, err = run(d_lr, d_hr)
+    assert rc == 2 and "frames [3, 4, 5, 6, 7, 8] are missing" in err
+    (d_lr / "frame9.exr").rename(d_lr / "frame3.exr")
+    (d_hr / "frame9.exr").rename(d_hr / "frame3.exr")
+    (d_lr / "frame10.exr").rename(d_lr / "frame4.exr")
+    (d_hr / "frame10.exr").rename(d_hr / "frame04.exr")
+    assert run(d_lr, d_hr)[0] == 0
+    with dataset.Dataset(out) as ds:
+        frames, _ = ds.video("test", "video_00", 4)
+    np.testing.assert_array_equal(frames.color[:, 0], video["x4"]["color"].astype(np.float16))
+    out.unlink()
+    (d_hr / "frame2.exr").rename(d_hr / "frame5.exr")  # targets 3-5 against inputs 2-4
+    rc, err = run(d_lr, d_hr)
+    assert rc == 2 and "frames do not pair" in err and "no target for [2]" in err
+    assert "no input for [5]" in err
+    assert not out.exists()
+
+
+def test_y_up_jitter_on_the_edge_stays_legal():
+    from jtus.data import conventions
+
+    j = conventions.jitter_to_jtus(np.array([[0.25, 0.0], [0.5, 0.5]]), "unit", y_up=True)
+    assert np.all((j >= 0) & (j < 1)) and j[1, 1] == 0.5 and j[0, 1] > 0.999999
+    c = conventions.jitter_to_jtus(np.array([0.0, -0.5]), "centered", y_up=True)
+    assert np.all((c >= 0) & (c < 1))

@@ -52,6 +52,8 @@ def jitter_to_jtus(jitter, kind="unit", y_up=False):
         j = j + 0.5
     if y_up:
         j = j * np.array([1.0, -1.0]) + np.array([0.0, 1.0])
+        # y up 0 (the pixel's bottom edge) is y down 1: the same edge, kept inside [0,1)
+        j[..., 1] = np.where(j[..., 1] == 1.0, np.nextafter(1.0, 0.0), j[..., 1])
     return j
 
 

@@ -97,12 +97,40 @@ class ImportSpec:
 
 
 def _frames(folder):
+    """``{frame number: path}`` of a folder's EXRs, the number being the last group of
+    digits in each name (``frame10.exr`` is frame 10, after ``frame2.exr``)."""
+    import re
+
     if not os.path.isdir(folder):
         raise FileNotFoundError(f"{folder}: no such folder")
-    files = sorted(f for f in os.listdir(folder) if f.lower().endswith(".exr"))
+    files = [f for f in os.listdir(folder) if f.lower().endswith(".exr")]
     if not files:
         raise ValueError(f"{folder}: no .exr files")
-    return [os.path.join(folder, f) for f in files]
+    out = {}
+    for f in files:
+        digits = re.findall(r"\d+", os.path.splitext(f)[0])
+        if not digits:
+            raise ValueError(f"{os.path.join(folder, f)}: no frame number in the name")
+        n = int(digits[-1])
+        if n in out:
+            raise ValueError(f"{folder}: {os.path.basename(out[n])} and {f} are both frame {n}")
+        out[n] = os.path.join(folder, f)
+    numbers = sorted(out)
+    gaps = sorted(set(range(numbers[0], numbers[-1] + 1)) - set(numbers))
+    if gaps:
+        raise ValueError(f"{folder}: frames {gaps[:10]} are missing between {numbers[0]} and "
+                         f"{numbers[-1]}")
+    return out
+
+
+def _check_values(path, field, v, lo=None, hi=None):
+    bad = ~np.isfinite(v)
+    if bad.any():
+        raise ValueError(f"{path}: {field} has {int(bad.sum())} NaN or Inf values")
+    if lo is not None and v.min() < lo:
+        raise ValueError(f"{path}: {field} has values below {lo} (min {float(v.min()):.4g})")
+    if hi is not None and v.max() > hi:
+        raise ValueError(f"{path}: {field} has values above {hi} (max {float(v.max()):.4g})")
 
 
 def _jitters(spec, n, factor):
@@ -124,11 +152,21 @@ def _jitters(spec, n, factor):
 def load_sequence(input_dir, target_dir, factor, spec: ImportSpec = ImportSpec()):
     """Read an EXR sequence into the ``jtus.sim.video`` dict layout (one factor).
     ``target_dir`` None reads the inputs alone (``target`` is then absent)."""
-    inputs = _frames(input_dir)
-    targets = _frames(target_dir) if target_dir is not None else [None] * len(inputs)
-    if len(inputs) != len(targets):
-        raise ValueError(f"{input_dir} has {len(inputs)} frames but {target_dir} has "
-                         f"{len(targets)}")
+    by_number = _frames(input_dir)
+    numbers = sorted(by_number)
+    inputs = [by_number[n] for n in numbers]
+    if target_dir is not None:
+        tby = _frames(target_dir)
+        if sorted(tby) != numbers:
+            only_in = sorted(set(numbers) - set(tby))[:10]
+            only_tg = sorted(set(tby) - set(numbers))[:10]
+            raise ValueError(f"frames do not pair: {input_dir} has frames {numbers[0]}-"
+                             f"{numbers[-1]}, {target_dir} has {min(tby)}-{max(tby)}"
+                             + (f"; no target for {only_in}" if only_in else "")
+                             + (f"; no input for {only_tg}" if only_tg else ""))
+        targets = [tby[n] for n in numbers]
+    else:
+        targets = [None] * len(inputs)
     cols = {"color": [], "depth": [], "motion": [], "target": []}
     shape = None
     for fin, ftg in zip(inputs, targets):
@@ -140,25 +178,39 @@ def load_sequence(input_dir, target_dir, factor, spec: ImportSpec = ImportSpec()
         elif (h, w) != shape:
             raise ValueError(f"{fin}: size {h}x{w} differs from the first frame's "
                              f"{shape[0]}x{shape[1]}")
+        _check_values(fin, "color", color)
         depth = _pick(ch, (spec.depth,), fin, "depth")
-        depth = conventions.depth_to_device(depth, spec.depth_kind, spec.near, spec.far)
+        _check_values(fin, f"depth ({spec.depth_kind})", depth, lo=0.0,
+                      hi=1.0 if spec.depth_kind in ("device", "reversed", "linear") else None)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            depth = conventions.depth_to_device(depth, spec.depth_kind, spec.near, spec.far)
+        _check_values(fin, f"depth (as device depth, from {spec.depth_kind} with near "
+                      f"{spec.near}, far {spec.far})", depth, lo=0.0, hi=1.0)
         motion = conventions.motion_to_jtus(_pick(ch, spec.motion, fin, "motion"), w, h,
                                             spec.motion_units, spec.motion_y_up,
                                             spec.motion_negate)
+        _check_values(fin, "motion", motion)
         for k, v in (("color", color), ("depth", depth), ("motion", motion)):
             cols[k].append(v.astype(np.float32))
         if ftg is not None:
             tch, _ = read_exr(ftg)
             target = _pick(tch, spec.target_color, ftg, "target")
+            _check_values(ftg, "target", target)
             if target.shape[:2] != (h * factor, w * factor):
                 raise ValueError(f"{ftg}: target size {target.shape[0]}x{target.shape[1]} is "
                                  f"not factor {factor} x the input's {h}x{w}")
             cols["target"].append(target.astype(np.float32))
     n = len(inputs)
+    jitter = _jitters(spec, n, factor)
+    if not (np.all(np.isfinite(jitter)) and np.all((jitter >= 0) & (jitter < 1))):
+        raise ValueError(f"jitter: expected values in [0, 1) after the {spec.jitter_kind!r} "
+                         f"convention, got min {np.nanmin(jitter):.4g}, max "
+                         f"{np.nanmax(jitter):.4g} ({int((~np.isfinite(jitter)).sum())} NaN "
+                         f"or Inf)")
     out = {"reset": np.arange(n) == 0,
            f"x{factor}": {"color": np.stack(cols["color"]), "depth": np.stack(cols["depth"]),
                           "motion": np.stack(cols["motion"]),
-                          "jitter": _jitters(spec, n, factor).astype(np.float32)}}
+                          "jitter": jitter.astype(np.float32)}}
     if cols["target"]:
         out["target"] = np.stack(cols["target"])
     return out
