@@ -43,7 +43,7 @@ def main():
     scene = sim.get_scene("textures")
     rows, data = [], []
     for factor in (4, 2):
-        entries = [e for e in (evaluate.resolve(s, factor) for s in args.models) if e]
+        entries = evaluate.resolve_all(args.models, factor)
         for jit in VARIETY:
             frames, targets = static_hold(scene, args.size, factor, jit, args.frames)
             for e in entries:

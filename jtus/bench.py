@@ -180,9 +180,13 @@ def train_workload(factor, crop, batch, seq, loss_frames, remat=False, unroll=1,
         ts[0], _, stats = step(ts[0], carry(), frames, targets)
         stats["loss"].block_until_ready()
 
-    def hlo():
-        return step.lower(ts[0], carry(), frames, targets).compile().as_text()
+    def compiled():
+        return step.lower(ts[0], carry(), frames, targets).compile()
 
+    def hlo():
+        return compiled().as_text()
+
+    run.compiled = compiled  # for the memory the compiled step needs (bench_train)
     return run, hlo, model
 
 
@@ -201,10 +205,19 @@ def bench_train(factor, crop, batch, seq, loss_frames, repeats, remat=False, unr
            "gflop_per_step": 3 * fwd / 1e9,
            "remat": remat, "unroll": bool(unroll is True), "conv_backward": conv_backward,
            "warp": warp}
+    try:  # what XLA plans for the step: temporaries plus arguments and outputs
+        mem = run.compiled().memory_analysis()
+        rec["peak_mib"] = (mem.temp_size_in_bytes + mem.argument_size_in_bytes
+                           + mem.output_size_in_bytes) / 2 ** 20
+    except Exception:  # not every backend reports it
+        pass
+    frames = batch * seq
     if against is None:
-        return dict(rec, s_per_step=timeit(run, repeats))
+        seconds = timeit(run, repeats)
+        return dict(rec, s_per_step=seconds, frames_per_s=frames / seconds)
     seconds, other = timeit_pair(run, against, repeats)
-    return dict(rec, s_per_step=seconds, torch_s_per_step=other, torch_over_jtus=other / seconds)
+    return dict(rec, s_per_step=seconds, torch_s_per_step=other, torch_over_jtus=other / seconds,
+                frames_per_s=frames / seconds, torch_frames_per_s=frames / other)
 
 
 def _torch():
@@ -353,7 +366,11 @@ def markdown(report):
                   f"sequence {r['seq']}, loss on the last {r['loss_frames']}, Adam; {scan} scan, "
                   f"{r['conv_backward']} conv backward{', remat' if r['remat'] else ''}): "
                   f"jtus {r['s_per_step']:.3f} s, PyTorch {r.get('torch_s_per_step', float('nan')):.3f} s, "
-                  f"torch/jtus {r.get('torch_over_jtus', float('nan')):.2f}."]
+                  f"torch/jtus {r.get('torch_over_jtus', float('nan')):.2f}.",
+                  "", f"Training throughput: jtus {r['frames_per_s']:.1f} frames/s, PyTorch "
+                  f"{r.get('torch_frames_per_s', float('nan')):.1f} frames/s (batch x sequence "
+                  f"per step); compiled step memory {r.get('peak_mib', float('nan')):.0f} MiB "
+                  f"(XLA's plan: temporaries, arguments, outputs)."]
         if "bound_s_at_conv_peak" in r:
             lines += ["", f"At least {r['gflop_per_step']:.1f} GFLOP per step (3x the forward "
                           f"FLOPs of {r['batch']} x {r['seq']} frames): "

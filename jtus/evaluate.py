@@ -71,7 +71,28 @@ def resolve(spec, factor) -> Entry | None:
                   f"{factor}x", file=sys.stderr)
             return None
         return Entry(label, train._model(config), params)
+    if spec in models.TRAINABLE:
+        raise ValueError(f"model: {spec!r} needs weights; give LABEL=PATH (a .msgpack from "
+                         f"jtus.train or a .pt), or 'shipped' for DLCTUS")
+    if spec not in models.NAMES:
+        raise ValueError(f"model: {spec!r} is not a model; expected one of "
+                         f"{tuple(n for n in models.NAMES if n not in models.TRAINABLE)}, "
+                         f"'shipped' or LABEL=PATH")
     return Entry(spec, models.build(spec, factor), {})
+
+
+def resolve_all(specs, factor):
+    """Entries for every spec (those without weights at ``factor`` skipped, with a
+    warning); refuses repeated labels and an empty result."""
+    entries = [e for e in (resolve(s, factor) for s in specs) if e is not None]
+    labels = [e.label for e in entries]
+    repeated = sorted({lab for lab in labels if labels.count(lab) > 1})
+    if repeated:
+        raise ValueError(f"models: the labels {repeated} are given more than once; give each "
+                         f"model its own LABEL=PATH")
+    if not entries:
+        raise ValueError(f"models: none of {list(specs)} can run at factor {factor}")
+    return entries
 
 
 def evaluate(entries, dataset_path, factor, split="test", max_videos=None, progress=True):
@@ -202,7 +223,7 @@ def main(argv=None):
         os.makedirs(args.out, exist_ok=True)
         summary, legends = {}, {}
         for f in factors:
-            entries = [e for e in (resolve(s, f) for s in args.models) if e is not None]
+            entries = resolve_all(args.models, f)
             per_frame, names = evaluate(entries, args.dataset, f, args.split, args.max_videos,
                                         progress=not args.quiet)
             summary[f] = summarize(per_frame)

@@ -16,6 +16,9 @@ def test_bench_smoke(capsys):
     dl = [r for r in report["infer"] if r["model"] == "dlctus"][0]
     assert dl["ms"] > 0 and dl["network_ms"] > 0 and "torch_over_jtus" in dl
     assert report["train"]["s_per_step"] > 0 and report["peak"]["matmul_gflops"] > 0
+    tr = report["train"]
+    assert tr["frames_per_s"] == tr["batch"] * tr["seq"] / tr["s_per_step"]
+    assert tr["peak_mib"] > 0
     assert [r["warp"] for r in report["train_warps"]] == ["bicubic", "nearest"]
     assert report["train"] == report["train_warps"][0]
 

@@ -299,3 +299,35 @@ def test_y_up_jitter_on_the_edge_stays_legal():
     assert np.all((j >= 0) & (j < 1)) and j[1, 1] == 0.5 and j[0, 1] > 0.999999
     c = conventions.jitter_to_jtus(np.array([0.0, -0.5]), "centered", y_up=True)
     assert np.all((c >= 0) & (c < 1))
+
+
+def test_import_exr_refuses_bad_names_outputs_and_sidecars(tmp_path, capsys):
+    video = sim.render_video(sim.get_scene("objects"), "test", 0, 2, size=(16, 16), factors=(4,),
+                             spp=1)
+    lr, hr = _exr_sequence(tmp_path, video, 4)
+    good = tmp_path / "spec.json"
+    good.write_text('{"depth": "depth.V", "depth_kind": "view", "motion": ["vec.u", "vec.v"],'
+                    ' "motion_units": "uv", "motion_y_up": true, "motion_negate": true}')
+    out = tmp_path / "x.h5"
+    base = ["import-exr", "--input", str(lr), "--target", str(hr), "--factor", "4"]
+    assert data_cli.main(base + ["--sidecar", str(good), "--out", str(out)]) == 0
+    before = out.read_bytes()
+    cases = [(["--sidecar", str(good), "--out", str(out)], "exists"),
+             (["--sidecar", str(good), "--out", str(tmp_path)], "is a folder"),
+             (["--sidecar", str(good), "--out", str(tmp_path / "y.h5"), "--name", "a/b"], "--name")]
+    for text, msg in (('{"motion_y_up": "no"}', "motion_y_up: expected true or false"),
+                      ('{"color": ["R", "G"]}', "color: expected 3 channel names"),
+                      ('{"near": "0.1"}', "near: expected a number"),
+                      ('{"far": null}', "far: expected a number"),
+                      ('{"depth_kind": "log"}', "depth_kind: expected one of"),
+                      ('{not json', "not valid JSON"), ('[1, 2]', "expected a JSON object")):
+        bad = tmp_path / f"bad{len(cases)}.json"
+        bad.write_text(text)
+        cases.append((["--sidecar", str(bad), "--out", str(tmp_path / "y.h5")], msg))
+    for args, msg in cases:
+        capsys.readouterr()
+        assert data_cli.main(base + args) == 2, args
+        err = capsys.readouterr().err
+        assert msg in err, (args, err)
+    assert out.read_bytes() == before and not (tmp_path / "y.h5").exists()
+    assert data_cli.main(base + ["--sidecar", str(good), "--out", str(out), "--force"]) == 0

@@ -146,3 +146,23 @@ def test_non_finite_data_stops_training_without_a_checkpoint(tiny_data, tmp_path
     with pytest.raises(ValueError, match="non-finite loss.*no checkpoint was written"):
         train.train_and_evaluate(_config(str(bad)), tmp_path / "run", progress=False)
     assert not (tmp_path / "run" / "checkpoint.msgpack").exists()
+
+
+def test_evaluate_refuses_ambiguous_or_empty_model_lists(tiny_data, tmp_path, capsys):
+    work = tmp_path / "run-x4"
+    assert train.main(["--preset", "tiny", "--dataset", tiny_data, "--workdir", str(work),
+                       "--epochs", "1", "--quiet", "--no-eval"]) == 0
+    ckpt = str(work / "checkpoint.msgpack")
+    base = ["--dataset", tiny_data, "--factor", "4", "--out", str(tmp_path / "e"), "--quiet",
+            "--no-crops"]
+    for models, msg in ((["tus", "tus"], "more than once"),
+                        ([f"a={ckpt}", f"a={ckpt}"], "more than once"),
+                        (["dlctus"], "needs weights"), (["kpn"], "needs weights"),
+                        (["nerf"], "not a model")):
+        capsys.readouterr()
+        assert evaluate.main(base + ["--models"] + models) == 2, models
+        assert msg in capsys.readouterr().err, models
+    # a checkpoint of another factor is skipped; when nothing is left, that is an error
+    base2 = [b if b != "4" else "2" for b in base]
+    assert evaluate.main(base2 + ["--models", f"m={ckpt}"]) == 2
+    assert "none of" in capsys.readouterr().err

@@ -34,7 +34,7 @@ def main():
     args = p.parse_args()
     rows, data = [], {}
     for f in (4, 2):
-        entries = [e for e in (evaluate.resolve(s, f) for s in args.models) if e]
+        entries = evaluate.resolve_all(args.models, f)
         pooled = {e.label: {"psnr": [], "ssim": [], "temporal": []} for e in entries}
         for clip in CLIPS:
             path = os.path.join(args.data, f"{clip}-x{f}.h5")

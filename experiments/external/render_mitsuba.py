@@ -400,7 +400,7 @@ def main():
                             "--target", os.path.join(src, "target"), "--factor", str(f),
                             "--sidecar", os.path.join(src, f"x{f}", "sidecar.json"),
                             "--out", os.path.join(args.out, f"{clip}-x{f}.h5"),
-                            "--name", clip], check=True)
+                            "--name", clip, "--force"], check=True)
     print(f"rendered {len(args.clips)} clips in {time.perf_counter() - t0:.0f} s",
           file=sys.stderr)
 

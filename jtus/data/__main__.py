@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import sys
 
 from jtus.data import dataset, exr
@@ -31,8 +32,9 @@ def _parser():
     i.add_argument("--factor", type=int, required=True)
     i.add_argument("--out", required=True)
     i.add_argument("--sidecar", help="JSON with ImportSpec keys (flags below override it)")
-    i.add_argument("--split", default="test")
+    i.add_argument("--split", default="test", choices=dataset.SPLITS)
     i.add_argument("--name", default="video_00")
+    i.add_argument("--force", action="store_true", help="replace an existing --out")
     i.add_argument("--color", help="comma-separated channel names, e.g. R,G,B")
     i.add_argument("--depth", help="depth channel name")
     i.add_argument("--motion", help="comma-separated motion channel names (x,y)")
@@ -55,6 +57,15 @@ def _parser():
 
 
 def _import(args):
+    import re
+
+    if not re.fullmatch(r"[A-Za-z0-9_.-]+", args.name):
+        raise ValueError(f"--name: expected letters, digits, '_', '-' or '.', got "
+                         f"{args.name!r}")
+    if os.path.isdir(args.out):
+        raise ValueError(f"--out: {args.out} is a folder; expected an .h5 file path")
+    if os.path.exists(args.out) and not args.force:
+        raise ValueError(f"--out: {args.out} exists; pass --force to replace it")
     spec = exr.ImportSpec.from_json(args.sidecar) if args.sidecar else exr.ImportSpec()
     over = {"color": tuple(args.color.split(",")) if args.color else None,
             "depth": args.depth, "motion": tuple(args.motion.split(",")) if args.motion else None,

@@ -83,17 +83,53 @@ class ImportSpec:
     jitter_kind: str = "unit"        # unit [0,1) | centered [-0.5, 0.5)
     jitter_y_up: bool = False
 
+    def __post_init__(self):
+        def names(field, n):
+            v = getattr(self, field)
+            if (not isinstance(v, (tuple, list)) or len(v) != n
+                    or not all(isinstance(x, str) and x for x in v)):
+                raise ValueError(f"{field}: expected {n} channel names, got {v!r}")
+        names("color", 3)
+        names("target_color", 3)
+        names("motion", 2)
+        if not isinstance(self.depth, str) or not self.depth:
+            raise ValueError(f"depth: expected a channel name, got {self.depth!r}")
+        for field in ("motion_y_up", "motion_negate", "jitter_y_up"):
+            if not isinstance(getattr(self, field), bool):
+                raise ValueError(f"{field}: expected true or false, got "
+                                 f"{getattr(self, field)!r}")
+        for field, allowed in (("motion_units", conventions.MOTION_UNITS),
+                               ("depth_kind", conventions.DEPTH_KINDS),
+                               ("jitter_kind", conventions.JITTER_KINDS)):
+            if getattr(self, field) not in allowed:
+                raise ValueError(f"{field}: expected one of {allowed}, got "
+                                 f"{getattr(self, field)!r}")
+        for field in ("near", "far"):
+            v = getattr(self, field)
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise ValueError(f"{field}: expected a number, got {v!r}")
+        if isinstance(self.jitter, str) and self.jitter != "thesis":
+            raise ValueError(f"jitter: expected 'thesis' or numbers, got {self.jitter!r}")
+
     @classmethod
     def from_json(cls, path):
-        with open(path) as fh:
-            data = json.load(fh)
+        try:
+            with open(path) as fh:
+                data = json.load(fh)
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{path}: not valid JSON ({e})") from e
+        if not isinstance(data, dict):
+            raise ValueError(f"{path}: expected a JSON object of ImportSpec keys")
         fields = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(data) - fields)
         if unknown:
             raise ValueError(f"{path}: unknown keys {unknown}; expected some of {sorted(fields)}")
         data = {k: tuple(v) if isinstance(v, list) and k in ("color", "motion", "target_color")
                 else v for k, v in data.items()}
-        return cls(**data)
+        try:
+            return cls(**data)
+        except ValueError as e:
+            raise ValueError(f"{path}: {e}") from e
 
 
 def _frames(folder):
