@@ -337,12 +337,38 @@ def load_params(path, config_path=None):
     beside = os.path.splitext(path)[0] + ".json"
     config_path = config_path or (beside if os.path.exists(beside)
                                   else os.path.join(workdir, "config.json"))
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"{path}: no such checkpoint")
+    if not os.path.exists(config_path):
+        raise FileNotFoundError(f"{path}: its config {config_path} is missing")
     config = config_from_json(config_path)
     model = _model(config)
     params = model.init(jax.random.PRNGKey(0))
-    with open(path, "rb") as fh:
-        raw = serialization.msgpack_restore(fh.read())
-    params = serialization.from_state_dict(params, raw["params"])
+    try:
+        with open(path, "rb") as fh:
+            raw = serialization.msgpack_restore(fh.read())
+    except Exception as e:  # msgpack raises several types for damaged files
+        raise ValueError(f"{path}: not a readable checkpoint ({type(e).__name__}: {e})") from e
+    if not isinstance(raw, dict) or "params" not in raw:
+        raise ValueError(f"{path}: no 'params' entry (keys: "
+                         f"{sorted(raw) if isinstance(raw, dict) else type(raw).__name__})")
+    want = {jax.tree_util.keystr(k): v for k, v in
+            jax.tree_util.tree_flatten_with_path(params)[0]}
+    try:
+        got_tree = serialization.from_state_dict(params, raw["params"])
+    except Exception as e:
+        raise ValueError(f"{path}: parameters do not fit {config.model} at {config.factor}x "
+                         f"({e})") from e
+    for k, v in jax.tree_util.tree_flatten_with_path(got_tree)[0]:
+        ref = want[jax.tree_util.keystr(k)]
+        v = np.asarray(v)
+        if v.shape != ref.shape or not np.issubdtype(v.dtype, np.floating):
+            raise ValueError(f"{path}: parameter {jax.tree_util.keystr(k)} has shape {v.shape} "
+                             f"and dtype {v.dtype}; {config.model} at {config.factor}x expects "
+                             f"{ref.shape} floating")
+        if not np.all(np.isfinite(v)):
+            raise ValueError(f"{path}: parameter {jax.tree_util.keystr(k)} holds NaN or Inf")
+    params = got_tree
     # device arrays: numpy leaves cannot be indexed by traced values (KPN's phase)
     return jax.tree_util.tree_map(jnp.asarray, params), config
 
@@ -377,10 +403,22 @@ def config_to_json(config: Config):
 
 
 def config_from_json(path):
-    with open(path) as fh:
-        data = json.load(fh)
+    try:
+        with open(path) as fh:
+            data = json.load(fh)
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path}: not valid JSON ({e})") from e
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a JSON object of training config keys")
+    known = {f.name for f in dataclasses.fields(Config)}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise ValueError(f"{path}: unknown config keys {unknown}")
     data["model_overrides"] = tuple(tuple(x) for x in data.get("model_overrides", ()))
-    return Config(**data)
+    try:
+        return Config(**data)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{path}: {e}") from e
 
 
 def _write_csv(workdir, history):

@@ -3,6 +3,7 @@
 import dataclasses
 import json
 import os
+import re
 
 import jax
 import numpy as np
@@ -166,3 +167,38 @@ def test_evaluate_refuses_ambiguous_or_empty_model_lists(tiny_data, tmp_path, ca
     base2 = [b if b != "4" else "2" for b in base]
     assert evaluate.main(base2 + ["--models", f"m={ckpt}"]) == 2
     assert "none of" in capsys.readouterr().err
+
+
+def test_load_params_checks_structure_shapes_and_values(tiny_data, tmp_path):
+    from flax import serialization
+
+    work = tmp_path / "run"
+    train.train_and_evaluate(_config(tiny_data, epochs=1), work, progress=False)
+    good, _ = train.load_params(str(work / "checkpoint.msgpack"))
+    base = str(tmp_path / "p")
+    train.export_params(str(work), base)
+    path, cfg = base + ".msgpack", base + ".json"
+
+    def write(obj):
+        with open(path, "wb") as fh:
+            fh.write(obj if isinstance(obj, bytes) else serialization.to_bytes(obj))
+
+    bad_kernel = jax.tree_util.tree_map(np.asarray, good)
+    bad_kernel["down"]["kernel"] = np.zeros((3, 3, 8, 32), np.float32)
+    ints = jax.tree_util.tree_map(lambda x: np.zeros(x.shape, np.int32), good)
+    nans = jax.tree_util.tree_map(lambda x: np.full(x.shape, np.nan, np.float32), good)
+    for obj, msg in ((b"\xc1\xc1 garbage", "not a readable checkpoint"),
+                     ({"weights": 1}, "no 'params' entry"),
+                     ({"params": bad_kernel}, "['down']['kernel'] has shape (3, 3, 8, 32)"),
+                     ({"params": ints}, "dtype int32"), ({"params": nans}, "NaN or Inf")):
+        write(obj)
+        with pytest.raises(ValueError, match=re.escape(msg)) as e:
+            train.load_params(path)
+        assert "p.msgpack" in str(e.value)
+    write({"params": good})
+    with open(cfg) as fh:
+        data = json.load(fh)
+    with open(cfg, "w") as fh:
+        json.dump({**data, "colour": 1}, fh)
+    with pytest.raises(ValueError, match=r"p.json: unknown config keys \['colour'\]"):
+        train.load_params(path)

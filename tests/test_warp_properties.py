@@ -184,3 +184,30 @@ def test_separable_read_derivatives_equal_plain_autodiff(x64, rng):
     _, t = jax.jvp(lambda a, b, c: _separable(a, iy0, ix0, b, c), (img, wy, wx), tangents)
     _, t_ref = jax.jvp(lambda a, b, c: _rows(a, iy0, ix0, b, c), (img, wy, wx), tangents)
     np.testing.assert_allclose(t, t_ref, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("method", sampling.METHODS)
+def test_edges_of_the_input_domain(method):
+    """Integer coordinates and images are cast, not truncated: bilinear at the integer
+    corner (2, 2) of a 4x4 ramp is the mean of its 4 neighbours (7.5), as at (2.0, 2.0);
+    NaN coordinates give NaN with every method; coordinates far outside read the edge
+    with a zero, finite gradient (no wrapped tap index)."""
+    img = jnp.arange(16.0).reshape(1, 4, 4, 1)
+    xy_int = jnp.array([[[[2, 2], [1, 3]]]])
+    np.testing.assert_array_equal(sampling.sample(img, xy_int, method),
+                                  sampling.sample(img, xy_int.astype(jnp.float32), method))
+    if method == "bilinear":
+        assert float(sampling.sample(img, xy_int, method)[0, 0, 0, 0]) == 7.5
+    xy = jnp.array([[[[1.75, 1.5]]]])
+    np.testing.assert_allclose(sampling.sample(img.astype(jnp.int32), xy, method),
+                               sampling.sample(img, xy, method), rtol=1e-6)
+    nan = sampling.sample(img, jnp.array([[[[jnp.nan, 1.5], [1.5, jnp.nan]]]]), method)
+    assert np.all(np.isnan(np.asarray(nan)))
+    for far in (3e9, -3e9):
+        def read(x):
+            return sampling.sample(img, jnp.stack([x, jnp.float32(1.5)])[None, None, None],
+                                   method).sum()
+        v, g = jax.value_and_grad(read)(jnp.float32(far))
+        edge = img[0, 1:3, -1 if far > 0 else 0, 0]  # rows around y = 1.5 at the edge column
+        assert float(edge.min()) - 1e-4 <= float(v) <= float(edge.max()) + 1e-4
+        assert np.isfinite(float(g)) and float(g) == 0.0

@@ -26,6 +26,9 @@ CATMULL_ROM_A = -0.5
 PYTORCH_A = -0.75
 
 
+_FAR = float(2 ** 24)  # beyond this every tap is clamped to the edge pixel
+
+
 def _check(image, xy):
     if image.ndim != 4:
         raise ValueError(f"image: expected [B,H,W,C], got shape {image.shape}")
@@ -229,10 +232,21 @@ def sample(image, xy, method="bilinear", a=PYTORCH_A, return_mask=False):
 
     Returns ``[B,Ho,Wo,C]`` in the image's dtype, and with ``return_mask`` also
     ``inside_mask(xy, H, W)``.
+    NaN coordinates give NaN with every method. Integer images and coordinates are
+    cast to floating point first (an integer coordinate 2 is the corner between
+    pixels 1 and 2, as 2.0 is). Coordinates beyond ``±2**24`` pixels are clamped there:
+    every tap is then the edge pixel whatever the fraction, so values and gradients
+    are unchanged, and the integer tap indices cannot overflow.
     """
     _check(image, xy)
+    if not jnp.issubdtype(image.dtype, jnp.floating):
+        image = image.astype(jnp.float32)
+    if not jnp.issubdtype(xy.dtype, jnp.floating):
+        xy = xy.astype(image.dtype if image.dtype == jnp.float64 else jnp.float32)
+    xy = jnp.clip(xy, -_FAR, _FAR)
     if method == "nearest":
         out = _nearest(image, xy)
+        out = jnp.where(jnp.isnan(xy).any(-1, keepdims=True), jnp.nan, out)
     elif method == "bilinear":
         out = _bilinear(image, xy)
     elif method == "bicubic":
