@@ -95,9 +95,13 @@ def resolve_all(specs, factor):
     return entries
 
 
-def evaluate(entries, dataset_path, factor, split="test", max_videos=None, progress=True):
+def evaluate(entries, dataset_path, factor, split="test", max_videos=None, progress=True,
+             videos=None):
     """``{label: {"psnr": [...], "ssim": [...], "temporal": [...]}}`` per frame, all
-    videos concatenated, plus the video names."""
+    videos concatenated, plus the video names. ``videos``: a shell-style pattern of
+    the video names to take (``random_*`` for the randomized test family)."""
+    import fnmatch
+
     from tqdm import tqdm
 
     from jtus.data.dataset import Dataset
@@ -105,9 +109,13 @@ def evaluate(entries, dataset_path, factor, split="test", max_videos=None, progr
 
     out = {e.label: {"psnr": [], "ssim": [], "temporal": []} for e in entries}
     with Dataset(dataset_path) as ds:
-        names = ds.videos(split)[:max_videos]
+        names = ds.videos(split)
+        if videos:
+            names = [n for n in names if fnmatch.fnmatch(n, videos)]
+        names = names[:max_videos]
         if not names:
-            raise ValueError(f"{dataset_path}: no videos in split {split!r}")
+            raise ValueError(f"{dataset_path}: no videos in split {split!r}"
+                             + (f" match {videos!r}" if videos else ""))
         for name in tqdm(names, desc=f"evaluate x{factor}", disable=not progress):
             frames, targets = ds.video(split, name, factor)
             frames, targets = jax.tree_util.tree_map(jnp.asarray, (frames, targets))
@@ -203,6 +211,7 @@ def _parser():
     p.add_argument("--factor", type=int, nargs="*", help="default: every factor in the data")
     p.add_argument("--models", nargs="+", default=["jau", "tus", "shipped"])
     p.add_argument("--max-videos", type=int)
+    p.add_argument("--videos", help="shell-style pattern of video names, e.g. 'random_*'")
     p.add_argument("--out", default="runs/eval")
     p.add_argument("--no-crops", action="store_true")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -225,7 +234,7 @@ def main(argv=None):
         for f in factors:
             entries = resolve_all(args.models, f)
             per_frame, names = evaluate(entries, args.dataset, f, args.split, args.max_videos,
-                                        progress=not args.quiet)
+                                        progress=not args.quiet, videos=args.videos)
             summary[f] = summarize(per_frame)
             plot_per_frame(per_frame, os.path.join(args.out, f"per_frame_x{f}.png"), f)
             if not args.no_crops:

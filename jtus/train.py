@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
+import functools
 import json
 import os
 import sys
@@ -277,11 +278,17 @@ def _frame_metrics(factor):
     return fn
 
 
+@functools.lru_cache(maxsize=64)
+def _video_metrics_fn(model, factor):
+    """One jitted function per (model, factor): videos of one shape compile once."""
+    return jax.jit(lambda p, s, f, t: rollout.metrics(model.step, p, s, f, t,
+                                                      _frame_metrics(factor))[0])
+
+
 def video_metrics(model, params, frames, targets, factor):
     """Per-frame PSNR, SSIM, spatial error (L_st-linear at θ=0) and temporal error
     (L_st-linear at θ=1, NaN on the first frame) over one video."""
-    fn = jax.jit(lambda p, s, f, t: rollout.metrics(model.step, p, s, f, t,
-                                                    _frame_metrics(factor))[0])
+    fn = _video_metrics_fn(model, factor)
     first = jax.tree_util.tree_map(lambda x: x[0], frames)
     ms = fn(params, model.init_state(first), frames, targets)
     return {k: np.asarray(v)[:, 0] for k, v in ms.items()}

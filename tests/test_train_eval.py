@@ -163,6 +163,9 @@ def test_evaluate_refuses_ambiguous_or_empty_model_lists(tiny_data, tmp_path, ca
         capsys.readouterr()
         assert evaluate.main(base + ["--models"] + models) == 2, models
         assert msg in capsys.readouterr().err, models
+    assert evaluate.main(base + ["--models", "tus", "--videos", "objects*"]) == 0
+    assert evaluate.main(base + ["--models", "tus", "--videos", "nothing*"]) == 2
+    assert "match 'nothing*'" in capsys.readouterr().err
     # a checkpoint of another factor is skipped; when nothing is left, that is an error
     base2 = [b if b != "4" else "2" for b in base]
     assert evaluate.main(base2 + ["--models", f"m={ckpt}"]) == 2
