@@ -205,26 +205,6 @@ def test_streaming_source_matches_interface():
     assert frames.reset[0].all() and frames.color.dtype == np.float32
 
 
-def test_sigterm_during_generate_leaves_nothing(tmp_path):
-    """SIGTERM unwinds like Ctrl-C (jtus.cli.sigterm_as_exit): the temporary file goes."""
-    import signal
-    import subprocess
-    import sys
-    import time
-
-    out = tmp_path / "t.h5"
-    proc = subprocess.Popen([sys.executable, "-m", "jtus.data", "generate", "--preset", "tiny",
-                             "--out", str(out), "--quiet"], cwd=os.getcwd())
-    deadline = time.time() + 120
-    while time.time() < deadline and not [f for f in os.listdir(tmp_path) if f.endswith(".tmp")]:
-        time.sleep(0.05)
-    assert [f for f in os.listdir(tmp_path) if f.endswith(".tmp")], "generate never started"
-    time.sleep(0.5)  # inside the rendering
-    proc.send_signal(signal.SIGTERM)
-    assert proc.wait(120) == 128 + signal.SIGTERM
-    assert os.listdir(tmp_path) == []
-
-
 def test_exr_import_refuses_bad_values_and_frame_numbering(tmp_path, capsys):
     """Each defect: an error naming the file and field, exit 2, no file written."""
     import shutil
