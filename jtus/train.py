@@ -410,17 +410,9 @@ def config_to_json(config: Config):
 
 
 def config_from_json(path):
-    try:
-        with open(path) as fh:
-            data = json.load(fh)
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{path}: not valid JSON ({e})") from e
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: expected a JSON object of training config keys")
-    known = {f.name for f in dataclasses.fields(Config)}
-    unknown = sorted(set(data) - known)
-    if unknown:
-        raise ValueError(f"{path}: unknown config keys {unknown}")
+    from jtus.data.dataset import read_json_fields
+
+    data = read_json_fields(path, Config, "config keys")
     data["model_overrides"] = tuple(tuple(x) for x in data.get("model_overrides", ()))
     try:
         return Config(**data)

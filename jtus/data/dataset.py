@@ -134,6 +134,24 @@ def atomic_path(path):
         raise
 
 
+def read_json_fields(path, cls, what):
+    """A JSON file holding one object whose keys are fields of dataclass ``cls``:
+    the dict, or ``ValueError`` naming ``path`` (invalid JSON, not an object, unknown
+    keys; ``what`` names the kind of keys in messages, e.g. "config keys")."""
+    try:
+        with open(path) as fh:
+            data = json.load(fh)
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path}: not valid JSON ({e})") from e
+    fields = {f.name for f in dataclasses.fields(cls)}
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a JSON object of {cls.__name__} keys")
+    unknown = sorted(set(data) - fields)
+    if unknown:
+        raise ValueError(f"{path}: unknown {what} {unknown}; expected some of {sorted(fields)}")
+    return data
+
+
 def _chunks(shape, t=8, s=64):
     return (min(t, shape[0]),) + tuple(min(s, n) for n in shape[1:3]) + tuple(shape[3:])
 

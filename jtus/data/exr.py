@@ -12,7 +12,6 @@ Conventions are converted here, once (``jtus.data.conventions``).
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 
 import numpy as np
@@ -113,17 +112,9 @@ class ImportSpec:
 
     @classmethod
     def from_json(cls, path):
-        try:
-            with open(path) as fh:
-                data = json.load(fh)
-        except json.JSONDecodeError as e:
-            raise ValueError(f"{path}: not valid JSON ({e})") from e
-        if not isinstance(data, dict):
-            raise ValueError(f"{path}: expected a JSON object of ImportSpec keys")
-        fields = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(data) - fields)
-        if unknown:
-            raise ValueError(f"{path}: unknown keys {unknown}; expected some of {sorted(fields)}")
+        from jtus.data.dataset import read_json_fields
+
+        data = read_json_fields(path, cls, "keys")
         data = {k: tuple(v) if isinstance(v, list) and k in ("color", "motion", "target_color")
                 else v for k, v in data.items()}
         try:
