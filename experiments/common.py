@@ -14,6 +14,10 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RESULTS = os.path.join(ROOT, "docs", "results")
 sys.path.insert(0, ROOT)
 
+# the DLCTUS reprojection warps the experiments compare: (method, Keys a), cheapest first
+WARPS = (("bilinear", -0.75), ("bicubic5", -0.75), ("bicubic9", -0.75), ("catmull_rom", -0.5),
+         ("bicubic", -0.75))
+
 
 def out_dir(name):
     d = os.path.join(RESULTS, name)
@@ -50,19 +54,19 @@ def l1_recipe(factor, epochs, dataset, steps_per_epoch=100, seed=0):
     preset with one validation video. Returns ``(config, workdir of the L1 run)``."""
     import dataclasses
 
-    from jtus import train
+    from jtus.config import PRESETS
 
-    config = dataclasses.replace(train.PRESETS["default"], factor=factor, epochs=epochs,
+    config = dataclasses.replace(PRESETS["default"], factor=factor, epochs=epochs,
                                  steps_per_epoch=steps_per_epoch, seed=seed, dataset=dataset,
                                  val_videos=1)
     return config, os.path.join(ROOT, "runs", "sweep_theta", "L1")
 
 
 def evaluate_videos(model, params, dataset_path, factor, split="test", max_videos=None):
-    """Means over whole videos of ``jtus.train.video_metrics`` (PSNR, SSIM, spatial and
+    """Means over whole videos of ``jtus.evaluate.video_metrics`` (PSNR, SSIM, spatial and
     temporal error)."""
     from jtus.data.dataset import Dataset
-    from jtus.train import video_metrics
+    from jtus.evaluate import video_metrics
 
     acc = {}
     with Dataset(dataset_path) as ds:

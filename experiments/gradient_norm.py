@@ -1,6 +1,8 @@
 """The gradient norm of a training run's loss on one training batch, at initialization
 and with the run's trained parameters: zero after training means a collapsed network
-(saturated clamped outputs pass no gradient; docs/weights.md).
+(saturated clamped outputs pass no gradient; docs/weights.md). Runs trained since
+the epoch log kept gradient norms (``grad_norm``, ``grad_norm_max`` per epoch in
+``metrics.json``) are also read from the log: every step of training, not one batch.
 
     python experiments/gradient_norm.py runs/ablation_no_accumulation runs/sweep_theta/L1
 """
@@ -14,24 +16,38 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jtus import rollout, train
+from jtus import models, recipe, rollout
 from jtus.data.dataset import Dataset
 
 
 def gradient_norms(workdir, seed=1):
-    params, cfg = train.load_params(os.path.join(workdir, "checkpoint.msgpack"))
-    model, loss_fn = train._model(cfg), train._loss(cfg)
-    window, loss_frames, _, _ = train._plan(cfg)
+    params, cfg = models.load_params(os.path.join(workdir, "checkpoint.msgpack"))
+    model, loss_fn = recipe.model_for(cfg), recipe.loss_for(cfg)
+    plan = recipe.plan(cfg)
+    window, loss_frames = plan.window, plan.loss_frames
     with Dataset(cfg.dataset) as ds:
         fr, tg = jax.tree_util.tree_map(jnp.asarray, ds.crops(
             "train", cfg.factor, cfg.batch, window, cfg.crop, np.random.default_rng(seed)))
     out = {}
     for name, p in (("init", model.init(jax.random.PRNGKey(cfg.seed))), ("trained", params)):
-        carry = train._start_carry(model, fr, tg)
+        carry = recipe.start_carry(model, fr, tg)
         g = jax.grad(lambda q: rollout.window_loss(model.step, loss_fn, q, carry, fr, tg,
                                                    loss_frames=loss_frames)[0])(p)
         out[name] = float(jnp.sqrt(sum(jnp.sum(x * x) for x in jax.tree_util.tree_leaves(g))))
     return out
+
+
+def logged_norms(workdir):
+    """``[(epoch, mean, max gradient norm)]`` from the run's epoch log; [] for runs
+    logged before the log kept them."""
+    import json
+
+    path = os.path.join(workdir, "metrics.json")
+    if not os.path.exists(path):
+        return []
+    with open(path) as fh:
+        return [(h["epoch"], h["grad_norm"], h["grad_norm_max"]) for h in json.load(fh)
+                if "grad_norm" in h]
 
 
 def main(argv=None):
@@ -42,6 +58,8 @@ def main(argv=None):
     for w in args.workdirs:
         n = gradient_norms(w)
         print(f"{w}: gradient norm at initialization {n['init']:.3g}, trained {n['trained']:.3g}")
+        for epoch, mean, top in logged_norms(w):
+            print(f"  epoch {epoch}: mean {mean:.3g}, max {top:.3g} over its steps")
 
 
 if __name__ == "__main__":

@@ -23,12 +23,10 @@ import os
 import sys
 
 import numpy as np
-from common import ROOT, evaluate_videos, l1_recipe, write  # noqa: E402
+from common import ROOT, WARPS, evaluate_videos, l1_recipe, write  # noqa: E402
 
-from jtus import bench, evaluate, models, train
+from jtus import bench, models, recipe, train
 
-WARPS = (("bilinear", -0.75), ("bicubic5", -0.75), ("bicubic9", -0.75), ("catmull_rom", -0.5),
-         ("bicubic", -0.75))
 DTYPES = ("float32", "bfloat16", "float16")
 
 
@@ -61,7 +59,7 @@ def main(argv=None):
                    help="epochs of 100 steps for each accumulation-ablation network")
     args = p.parse_args(argv)
     ckpts = dict(c.split("=", 1) for c in args.checkpoint)
-    shipped = evaluate.resolve("shipped", args.factor)
+    shipped = models.load("shipped", args.factor)
     rows = []
     for name, over in _variants():
         rec = {"label": _label(name, over), "model": name}
@@ -77,7 +75,7 @@ def main(argv=None):
         if name == "dlctus" and shipped is not None:
             params = shipped.params
         elif name in ckpts:
-            params = evaluate.resolve(f"{name}={ckpts[name]}", args.factor).params
+            params = models.load(f"{name}={ckpts[name]}", args.factor).params
         elif name in ("jau", "jau-bicubic", "tus", "tus-clip"):
             params = {}
         if params is not None:
@@ -101,7 +99,7 @@ def main(argv=None):
             rec = {"label": f"dlctus accumulation={acc} ({args.ablation_epochs}x100 steps"
                             f"{'; collapsed: validation constant from epoch 2' if collapsed else ''})",
                    "model": "dlctus", "collapsed": collapsed}
-            rec.update(evaluate_videos(train._model(cfg), params, args.dataset, args.factor,
+            rec.update(evaluate_videos(recipe.model_for(cfg), params, args.dataset, args.factor,
                                        max_videos=args.max_videos))
             rows.append(rec)
             print(rec)

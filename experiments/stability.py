@@ -19,13 +19,11 @@ import os
 import jax
 import jax.numpy as jnp
 import numpy as np
-from common import write  # noqa: E402
+from common import WARPS, write  # noqa: E402
 
-from jtus import evaluate, metrics, models, rollout, sampling
+from jtus import metrics, models, rollout, sampling
 from jtus.frame import Frame
 
-WARPS = (("bilinear", -0.75), ("bicubic5", -0.75), ("bicubic9", -0.75), ("catmull_rom", -0.5),
-         ("bicubic", -0.75))
 
 
 def moving_texture_video(frames, size, factor, speed=(0.37, 0.11)):
@@ -82,9 +80,8 @@ def _curve(model, params, frames, targets):
     def fn(out, target, *rest):
         return {"psnr": metrics.psnr(out, target), "min": out.min(), "max": out.max()}
     run = jax.jit(lambda p, s, f, t: rollout.metrics(model.step, p, s, f, t, fn, check=False)[0])
-    first = jax.tree_util.tree_map(lambda x: x[0], frames)
     return {k: np.asarray(v).reshape(len(targets), -1)[:, 0] for k, v in
-            run(params, model.init_state(first), frames, targets).items()}
+            run(params, rollout.first_state(model, frames), frames, targets).items()}
 
 
 def main(argv=None):
@@ -96,7 +93,7 @@ def main(argv=None):
     p.add_argument("--factor", type=int, default=4)
     args = p.parse_args(argv)
     frames, targets = moving_texture_video(args.frames, args.size, args.factor)
-    shipped = evaluate.resolve("shipped", args.factor)
+    shipped = models.load("shipped", args.factor)
     rows, curves = [], {}
     marks = [m for m in (100, 1000, args.frames) if m <= args.frames]
     for system in ("tus", "dlctus"):
@@ -128,9 +125,8 @@ def main(argv=None):
         ref = None
         for dt in ("float32", "bfloat16", "float16"):
             m = models.build("dlctus", args.factor, dtype=dt)
-            first = jax.tree_util.tree_map(lambda x: x[0], sub[0])
             outs = np.asarray(jax.jit(lambda p, s, f: rollout.outputs(m.step, p, s, f, check=False)[0])(
-                shipped.params, m.init_state(first), sub[0]))
+                shipped.params, rollout.first_state(m, sub[0]), sub[0]))
             if ref is None:
                 ref = outs
             prec.append({"dtype": dt, "finite": bool(np.all(np.isfinite(outs))),

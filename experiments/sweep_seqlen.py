@@ -28,7 +28,8 @@ import numpy as np
 import optax
 from common import ROOT, write  # noqa: E402
 
-from jtus import losses, metrics, rollout, train
+from jtus import metrics, recipe, rollout, train
+from jtus.config import PRESETS
 from jtus.data.dataset import Dataset
 
 MODES = ("bptt", "tbptt", "bptt+remat")
@@ -70,17 +71,17 @@ def main(argv=None):
                    help="generated from the `long` preset (40-frame videos) when missing")
     p.add_argument("--max-videos", type=int, default=4)
     args = p.parse_args(argv)
-    base = dataclasses.replace(train.PRESETS["default"], factor=args.factor, crop=args.crop,
+    base = dataclasses.replace(PRESETS["default"], factor=args.factor, crop=args.crop,
                                batch=args.batch, dataset=args.dataset, data_preset="long")
-    train.ensure_dataset(base, progress=sys.stderr.isatty())
+    recipe.ensure_dataset(base, progress=sys.stderr.isatty())
     long_frames, long_targets = jax.tree_util.tree_map(
         jnp.asarray, _long_video(args.factor, args.long_frames, args.long_size))
     rows = []
     for length in args.lengths:
         for mode in args.modes:
             config = _config(base, length, mode)
-            model, loss_fn, opt = train._model(config), train._loss(config), optax.adam(config.lr)
-            window, lf, keep, windows = train._plan(config)
+            model, loss_fn, opt = recipe.model_for(config), recipe.loss_for(config), optax.adam(config.lr)
+            window, lf, keep, windows = recipe.plan(config)
             step = train.make_train_step(model, loss_fn, opt, loss_frames=lf, keep_at=keep,
                                          remat=config.remat)
             ts = train.create_train_state(model.init(jax.random.PRNGKey(0)), opt)
@@ -90,7 +91,7 @@ def main(argv=None):
                 for i in range(args.steps):
                     fr, tg = jax.tree_util.tree_map(jnp.asarray, ds.crops(
                         "train", config.factor, config.batch, config.seq_len, config.crop, rng))
-                    carry = train._start_carry(model, fr, tg)
+                    carry = recipe.start_carry(model, fr, tg)
                     t0 = time.perf_counter()
                     for w in windows:
                         sl = jax.tree_util.tree_map(lambda x: x[w.start:w.stop], (fr, tg))
@@ -105,9 +106,8 @@ def main(argv=None):
                 from common import evaluate_videos
                 q = evaluate_videos(model, ts.params, args.dataset, args.factor,
                                     max_videos=args.max_videos)
-            first = jax.tree_util.tree_map(lambda x: x[0], long_frames)
-            outs, _ = rollout.outputs(model.step, ts.params, model.init_state(first), long_frames,
-                                      check=False)
+            outs, _ = rollout.outputs(model.step, ts.params, rollout.first_state(model, long_frames),
+                                      long_frames, check=False)
             tail = slice(-20, None)
             long_psnr = float(jnp.mean(metrics.psnr(outs[tail, 0], long_targets[tail, 0])))
             rows.append({"length": length, "mode": mode, "s_per_step": float(np.median(times)),

@@ -15,7 +15,7 @@ import sys
 
 from common import ROOT, evaluate_videos, l1_recipe, write  # noqa: E402
 
-from jtus import train
+from jtus import recipe, train
 
 
 def main(argv=None):
@@ -38,7 +38,7 @@ def main(argv=None):
         work = os.path.join(ROOT, "runs", "sweep_theta", label.replace(" ", "_").replace("=", ""))
         params, _ = train.train_and_evaluate(config, work, resume=True,
                                               progress=sys.stderr.isatty())
-        rows[label] = evaluate_videos(train._model(config), params, args.dataset, args.factor,
+        rows[label] = evaluate_videos(recipe.model_for(config), params, args.dataset, args.factor,
                                       max_videos=args.max_videos)
     table = ["| loss | L_st-linear θ=0 (spatial) | L_st-linear θ=1 (temporal) | PSNR (dB) | SSIM |",
              "| --- | --- | --- | --- | --- |"]

@@ -9,8 +9,8 @@ Every timing is jitted, warm (the first call compiles and is not counted), block
 until ready, and the median of ``--repeats`` runs. The peak is a large float32 matmul
 and two convolutions (DLCTUS's own 3x3 32->32 layer at the 1080p network size, and a
 3x3 64->64 one), timed in the same run, so ratios are taken side by side on a noisy
-machine. The PyTorch reference (``tests/torch_dlctus.py``, needs ``torch`` and a
-source checkout) runs the same workloads, each repeat alternating with jtus's
+machine. The PyTorch reference (``tests/torch_dlctus.py``, loaded by path: needs
+``torch`` and a source checkout) runs the same workloads, each repeat alternating with jtus's
 (``timeit_pair``), so both medians come from the same minutes of a noisy machine;
 ratios are torch time / jtus time.
 """
@@ -18,6 +18,7 @@ ratios are torch time / jtus time.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -107,7 +108,8 @@ def infer_workload(name, factor, size, dtype="float32", **overrides):
     from jtus import models
 
     H, W = size
-    over = dict({"dtype": dtype} if name == "dlctus" else {}, **overrides)
+    has_dtype = "dtype" in {f.name for f in dataclasses.fields(models.spec(name).config(factor))}
+    over = dict({"dtype": dtype} if has_dtype else {}, **overrides)
     model = models.build(name, factor, **over)
     params = model.init(jax.random.PRNGKey(0))
     frame = _inputs(H // factor, W // factor)
@@ -173,8 +175,7 @@ def train_workload(factor, crop, batch, seq, loss_frames, remat=False, unroll=1,
                           jnp.float32)
 
     def carry():
-        return rollout.start(model.init_state(jax.tree_util.tree_map(lambda x: x[0], frames)),
-                             targets[0])
+        return rollout.start(rollout.first_state(model, frames), targets[0])
 
     def run():
         ts[0], _, stats = step(ts[0], carry(), frames, targets)
@@ -220,15 +221,28 @@ def bench_train(factor, crop, batch, seq, loss_frames, repeats, remat=False, unr
                 frames_per_s=frames / seconds, torch_frames_per_s=frames / other)
 
 
+# the PyTorch DLCTUS of the test suite, loaded by path (a test file, not part of the
+# package): the bench compares against it only from a source checkout
+TORCH_REFERENCE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                               "tests", "torch_dlctus.py")
+
+
 def _torch():
+    import importlib.util
+
     try:
         import torch
-
-        from tests import torch_dlctus
     except ImportError:
         return None, None
+    if not os.path.exists(TORCH_REFERENCE):
+        print(f"warning: no PyTorch reference at {TORCH_REFERENCE} (a source checkout has "
+              f"it); timing jtus alone", file=sys.stderr)
+        return None, None
+    spec = importlib.util.spec_from_file_location("jtus_bench_torch_dlctus", TORCH_REFERENCE)
+    ref = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ref)
     torch.set_num_threads(os.cpu_count())
-    return torch, torch_dlctus
+    return torch, ref
 
 
 def torch_infer(factor, size):

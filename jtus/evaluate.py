@@ -11,6 +11,10 @@ for a checkpoint written by ``jtus.train`` (``.msgpack``) or a PyTorch DLCTUS
 checkpoint (``.pt``); ``{f}`` in PATH becomes the factor being evaluated, so one spec
 covers a model trained per factor. Every video starts from a fresh state.
 
+As a library: ``evaluate.run(specs, dataset, factors, out)`` returns the summary
+(``train`` calls it after training); ``video_metrics`` is the per-video measurement
+training validates with. Models come from ``jtus.models.load``.
+
 Writes into ``--out``: ``results.md`` (per factor: PSNR / SSIM / temporal error per
 method, thesis Table 2 layout), ``results.json``, ``per_frame_x{f}.png`` (PSNR and SSIM
 per frame over the test videos, thesis Figures 8-13) and ``crops_x{f}.png`` (input,
@@ -20,79 +24,47 @@ each method, reference; thesis Table 3).
 from __future__ import annotations
 
 import argparse
+import fnmatch
+import functools
 import json
 import os
 import platform
 import sys
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from tqdm import tqdm
 
-WEIGHTS = os.path.join(os.path.dirname(__file__), "weights")
+from jtus import losses, metrics, models, rollout
+from jtus.data.dataset import Dataset
 
-
-class Entry(NamedTuple):
-    label: str
-    model: object
-    params: object
-
-
-def shipped_path(factor):
-    return os.path.join(WEIGHTS, f"dlctus-x{factor}.msgpack")
-
-
-def resolve(spec, factor) -> Entry | None:
-    """A model spec -> Entry (None for ``shipped`` weights that do not exist)."""
-    from jtus import models, train
-    from jtus.models import dlctus
-
-    if spec == "shipped":
-        path = shipped_path(factor)
-        if not os.path.exists(path):
-            print(f"warning: no shipped weights for factor {factor} ({path}); skipped",
-                  file=sys.stderr)
-            return None
-        spec = f"dlctus-shipped={path}"
-    if "=" in spec:
-        label, path = spec.split("=", 1)
-        path = path.replace("{f}", str(factor))
-        if not os.path.exists(path):
-            raise FileNotFoundError(f"{label}: {path} does not exist")
-        if path.endswith(".pt"):
-            config = dlctus.Config(factor=factor)
-            return Entry(label, dlctus.make(config), dlctus.load_torch_checkpoint(path, config))
-        params, config = train.load_params(path, os.path.splitext(path)[0] + ".json"
-                                           if os.path.exists(os.path.splitext(path)[0] + ".json")
-                                           else None)
-        if config.factor != factor:
-            print(f"warning: {label} was trained for factor {config.factor}; skipped at "
-                  f"{factor}x", file=sys.stderr)
-            return None
-        return Entry(label, train._model(config), params)
-    if spec in models.TRAINABLE:
-        raise ValueError(f"model: {spec!r} needs weights; give LABEL=PATH (a .msgpack from "
-                         f"jtus.train or a .pt), or 'shipped' for DLCTUS")
-    if spec not in models.NAMES:
-        raise ValueError(f"model: {spec!r} is not a model; expected one of "
-                         f"{tuple(n for n in models.NAMES if n not in models.TRAINABLE)}, "
-                         f"'shipped' or LABEL=PATH")
-    return Entry(spec, models.build(spec, factor), {})
+def frame_metrics(factor):
+    """Per-frame PSNR, SSIM, spatial error (L_st-linear at θ=0) and temporal error
+    (L_st-linear at θ=1, NaN on the first frame), for ``rollout.metrics``."""
+    def fn(out, target, prev_out, prev_target, has_prev, frame):
+        x, y = losses.errors(out, target, prev_out, prev_target, has_prev, frame, factor)
+        mean = lambda v: jnp.mean(v, axis=(1, 2, 3))  # noqa: E731
+        return {"psnr": metrics.psnr(out, target), "ssim": metrics.ssim(out, target),
+                "spatial": mean(losses.st_linear_terms(x, y, 0.0)),
+                "temporal": jnp.where(has_prev, mean(losses.st_linear_terms(x, y, 1.0)),
+                                      jnp.nan)}
+    return fn
 
 
-def resolve_all(specs, factor):
-    """Entries for every spec (those without weights at ``factor`` skipped, with a
-    warning); refuses repeated labels and an empty result."""
-    entries = [e for e in (resolve(s, factor) for s in specs) if e is not None]
-    labels = [e.label for e in entries]
-    repeated = sorted({lab for lab in labels if labels.count(lab) > 1})
-    if repeated:
-        raise ValueError(f"models: the labels {repeated} are given more than once; give each "
-                         f"model its own LABEL=PATH")
-    if not entries:
-        raise ValueError(f"models: none of {list(specs)} can run at factor {factor}")
-    return entries
+@functools.lru_cache(maxsize=64)
+def _video_metrics_fn(model, factor):
+    """One jitted function per (model, factor), built once: videos of one shape
+    compile once."""
+    return jax.jit(lambda p, s, f, t: rollout.metrics(model.step, p, s, f, t,
+                                                      frame_metrics(factor))[0])
+
+
+def video_metrics(model, params, frames, targets, factor):
+    """``frame_metrics`` over one time-major video (B=1), as numpy arrays ``[T]``."""
+    fn = _video_metrics_fn(model, factor)
+    ms = fn(params, rollout.first_state(model, frames), frames, targets)
+    return {k: np.asarray(v)[:, 0] for k, v in ms.items()}
 
 
 def evaluate(entries, dataset_path, factor, split="test", max_videos=None, progress=True,
@@ -100,13 +72,6 @@ def evaluate(entries, dataset_path, factor, split="test", max_videos=None, progr
     """``{label: {"psnr": [...], "ssim": [...], "temporal": [...]}}`` per frame, all
     videos concatenated, plus the video names. ``videos``: a shell-style pattern of
     the video names to take (``random_*`` for the randomized test family)."""
-    import fnmatch
-
-    from tqdm import tqdm
-
-    from jtus.data.dataset import Dataset
-    from jtus.train import video_metrics
-
     out = {e.label: {"psnr": [], "ssim": [], "temporal": []} for e in entries}
     with Dataset(dataset_path) as ds:
         names = ds.videos(split)
@@ -167,8 +132,6 @@ def crop_grid(entries, dataset_path, factor, path, split="test", crop=64, rows=3
     input (nearest-enlarged), each method, reference."""
     from PIL import Image
 
-    from jtus import rollout
-    from jtus.data.dataset import Dataset
     from jtus.data.exr import linear_to_srgb
 
     tiles = []
@@ -193,8 +156,8 @@ def crop_grid(entries, dataset_path, factor, path, split="test", crop=64, rows=3
             row = [np.repeat(np.repeat(lr, factor, 0), factor, 1)]
             fj = jax.tree_util.tree_map(lambda a: jnp.asarray(a[:t + 1]), frames)
             for e in entries:
-                first = jax.tree_util.tree_map(lambda a: a[0], fj)
-                outs, _ = rollout.outputs(e.model.step, e.params, e.model.init_state(first), fj)
+                outs, _ = rollout.outputs(e.model.step, e.params,
+                                          rollout.first_state(e.model, fj), fj)
                 row.append(np.asarray(outs[-1, 0])[y:y + c, x:x + c])
             row.append(tgt[y:y + c, x:x + c])
             tiles.append(np.concatenate(row, 1))
@@ -219,41 +182,57 @@ def _parser():
     return p
 
 
+def run(specs, dataset, factors=None, out=None, split="test", max_videos=None, videos=None,
+        crops=True, progress=True, command=None):
+    """Evaluate model ``specs`` (``models.load``) on ``split`` of ``dataset`` at each
+    of ``factors`` (default: every factor in the data). Returns ``{factor: {label:
+    {"psnr", "ssim", "temporal"}}}``; with ``out``, writes ``results.md``,
+    ``results.json``, ``per_frame_x{f}.png`` and (``crops``) ``crops_x{f}.png``."""
+    with Dataset(dataset) as ds:
+        factors = list(factors or ds.factors)
+    if out:
+        os.makedirs(out, exist_ok=True)
+    summary, legends, names = {}, {}, []
+    for f in factors:
+        entries = models.load_all(specs, f)
+        per_frame, names = evaluate(entries, dataset, f, split, max_videos, progress=progress,
+                                    videos=videos)
+        summary[f] = summarize(per_frame)
+        if out:
+            plot_per_frame(per_frame, os.path.join(out, f"per_frame_x{f}.png"), f)
+            if crops:
+                legends[f] = crop_grid(entries, dataset, f, os.path.join(out, f"crops_x{f}.png"),
+                                       split)
+    if out:
+        cmd = command or f"jtus.evaluate.run({list(specs)!r}, {dataset!r}, {factors!r})"
+        with open(os.path.join(out, "results.md"), "w") as fh:
+            fh.write(f"{markdown(summary)}\n\nCommand: `{cmd}`  \nSplit `{split}` of "
+                     f"`{dataset}`, {len(names)} videos; {platform.machine()}, JAX "
+                     f"{jax.__version__}, {jax.devices()[0].platform}.\n")
+            for f, leg in legends.items():
+                fh.write(f"\n`crops_x{f}.png` columns: {', '.join(leg)}\n")
+        with open(os.path.join(out, "results.json"), "w") as fh:
+            json.dump({str(k): v for k, v in summary.items()}, fh, indent=1)
+    return summary
+
+
 def main(argv=None):
-    from jtus.data.dataset import Dataset
-    from jtus.train import ensure_dataset, PRESETS
+    from jtus.config import PRESETS
+    from jtus.recipe import ensure_dataset
 
     args = _parser().parse_args(argv)
+    cmd = "python -m jtus.evaluate " + " ".join(argv if argv is not None else sys.argv[1:])
     try:
         if args.dataset == PRESETS["default"].dataset:
             ensure_dataset(PRESETS["default"], not args.quiet)
-        with Dataset(args.dataset) as ds:
-            factors = args.factor or list(ds.factors)
-        os.makedirs(args.out, exist_ok=True)
-        summary, legends = {}, {}
-        for f in factors:
-            entries = resolve_all(args.models, f)
-            per_frame, names = evaluate(entries, args.dataset, f, args.split, args.max_videos,
-                                        progress=not args.quiet, videos=args.videos)
-            summary[f] = summarize(per_frame)
-            plot_per_frame(per_frame, os.path.join(args.out, f"per_frame_x{f}.png"), f)
-            if not args.no_crops:
-                legends[f] = crop_grid(entries, args.dataset, f,
-                                       os.path.join(args.out, f"crops_x{f}.png"), args.split)
+        summary = run(args.models, args.dataset, args.factor, args.out, args.split,
+                      args.max_videos, args.videos, crops=not args.no_crops,
+                      progress=not args.quiet, command=cmd)
     except (ValueError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    table = markdown(summary)
-    cmd = "python -m jtus.evaluate " + " ".join(argv if argv is not None else sys.argv[1:])
-    with open(os.path.join(args.out, "results.md"), "w") as fh:
-        fh.write(f"{table}\n\nCommand: `{cmd}`  \nSplit `{args.split}` of `{args.dataset}`, "
-                 f"{len(names)} videos; {platform.machine()}, JAX {jax.__version__}, "
-                 f"{jax.devices()[0].platform}.\n")
-        for f, leg in legends.items():
-            fh.write(f"\n`crops_x{f}.png` columns: {', '.join(leg)}\n")
-    with open(os.path.join(args.out, "results.json"), "w") as fh:
-        json.dump({str(k): v for k, v in summary.items()}, fh, indent=1)
-    print(json.dumps({str(k): v for k, v in summary.items()}, indent=1) if args.json else table)
+    print(json.dumps({str(k): v for k, v in summary.items()}, indent=1) if args.json
+          else markdown(summary))
     return 0
 
 

@@ -24,10 +24,10 @@ import sys
 def load_dlctus(spec, factor):
     """``(model, params)`` of DLCTUS weights: ``shipped``, a ``.msgpack`` written by
     ``jtus.train`` or a ``.pt`` PyTorch checkpoint."""
-    from jtus import evaluate, models
+    from jtus import models
 
     builtin = spec == "shipped" or "=" in spec or spec in models.NAMES
-    entry = evaluate.resolve(spec if builtin else f"m={spec}", factor)
+    entry = models.load(spec if builtin else f"m={spec}", factor)
     if entry is None:
         raise ValueError(f"--model: {spec} has no weights for factor {factor}")
     if not hasattr(entry.model.config, "formulation"):
@@ -38,7 +38,7 @@ def load_dlctus(spec, factor):
 def to_torch(params, config, out):
     import torch
 
-    from jtus.data.dataset import atomic_path
+    from jtus.files import atomic_path
     from jtus.models import dlctus
 
     sd = dlctus.params_to_torch(params, config)
@@ -52,7 +52,7 @@ def to_stablehlo(model, params, size, out):
     import jax.numpy as jnp
     from jax import export
 
-    from jtus.data.dataset import atomic_path
+    from jtus.files import atomic_path
     from jtus.frame import Frame
     from jtus.models import dlctus
 

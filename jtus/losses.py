@@ -15,7 +15,9 @@ start of a video, ``has_prev`` False) or the reprojection leaves the image, ``y 
 - ``st-linear`` with θ (eq. 54-55): ``mean(|x| + |y| + θ(|x - y| - |x| - |y|))``:
   θ=0 is the L1 of the current and the previous error, θ=1 the temporal term
   ``|x - y|``;
-- ``ssim``: ``1 - SSIM``.
+- ``ssim``: ``1 - SSIM``;
+- ``kpn``: Herveau et al.'s alias-masked reference, gradient and temporal loss for
+  their kernel-prediction network (``kpn_loss``).
 
 Any of them takes NSRR's VGG-16 perceptual term on top when a weights file is given
 (``make(..., perceptual_weights=FILE)``, ``jtus.perceptual``); nothing is downloaded.
@@ -29,16 +31,14 @@ import jax.numpy as jnp
 
 from jtus import metrics, sampling
 
-NAMES = ("l1", "mse", "salvi", "st", "st-linear", "ssim")
+NAMES = ("l1", "mse", "salvi", "st", "st-linear", "ssim", "kpn")
 
 
 def warp_previous(prev, motion, factor, method="bilinear"):
     """``prev [B,H,W,C]`` read at the current frame's reprojected positions, and the
     mask ``[B,H,W,1]`` of positions inside the previous frame. ``motion`` is the LR
     backward motion ``[B,h,w,2]``."""
-    b, hh, ww, _ = prev.shape
-    xy = sampling.pixel_grid(b, hh, ww, prev.dtype) + factor * sampling.upsample(
-        motion.astype(prev.dtype), factor)
+    xy = sampling.reproject_coords(motion.astype(prev.dtype), factor)
     return sampling.sample(prev, xy, method, return_mask=True)
 
 
@@ -101,8 +101,44 @@ def make(name, factor, theta=0.5, method="bilinear", perceptual_weights=None,
         if not 0.0 <= theta <= 1.0:
             raise ValueError(f"theta: expected a value in [0, 1], got {theta}")
         base = functools.partial(_temporal, name, theta, factor, method)
+    elif name == "kpn":
+        base = kpn_loss(factor)
     else:
         raise ValueError(f"loss: expected one of {NAMES}, got {name!r}")
     if perceptual_weights:
         return with_perceptual(base, perceptual_weights, perceptual_weight)
     return base
+
+
+def alias_mask(jau, target, sensitivity=4.0):
+    """Herveau et al.'s per-pixel aliasing mask: the summed channel differences between
+    the (jitter-aligned) input and the reference, scaled, clipped to [0, 1], 3x3-dilated."""
+    m = jnp.clip(sensitivity * jnp.abs(jau - target).sum(-1, keepdims=True), 0.0, 1.0)
+    return sampling.neighbourhood(m, 3).max(-1)
+
+
+def kpn_loss(factor, weights=(1.0, 1.0, 10.0), alias_boost=1.5, sensitivity=4.0):
+    """Herveau et al.'s training loss for their kernel-prediction network (sec. 5.3):
+    reference (L1), gradient (L1 of x and y differences) and temporal (the current
+    error against the warped previous error) terms, each weighted by the alias mask M
+    as ``alias_boost * M + (1 - M)``."""
+    wr, wg, wt = weights
+
+    def grad(x):
+        return x[:, 1:, :-1] - x[:, :-1, :-1], x[:, :-1, 1:] - x[:, :-1, :-1]
+
+    def loss(out, target, prev_out, prev_target, has_prev, frame):
+        jau = sampling.jitter_aligned_upsample(frame.color.astype(jnp.float32),
+                                               frame.jitter.astype(jnp.float32), factor)
+        m = alias_mask(jau, target, sensitivity)
+        wgt = alias_boost * m + (1 - m)
+        ref = jnp.mean(wgt * jnp.abs(out - target))
+        gy_o, gx_o = grad(out)
+        gy_t, gx_t = grad(target)
+        wc = wgt[:, :-1, :-1]
+        g = jnp.mean(wc * (jnp.abs(gy_o - gy_t) + jnp.abs(gx_o - gx_t)))
+        x, y = errors(out, target, prev_out, prev_target, has_prev, frame, factor)
+        t = jnp.mean(wgt * jnp.abs(x - y))
+        return wr * ref + wg * g + wt * t
+
+    return loss

@@ -24,7 +24,7 @@ backward, see ``docs/performance.md``).
 
 from __future__ import annotations
 
-from typing import Any, Callable, NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -43,6 +43,12 @@ def start(state, target_like) -> Carry:
         return jnp.zeros(target_like.shape, jnp.float32)
 
     return Carry(state, zeros(), zeros(), jnp.asarray(False))
+
+
+def first_state(model, frames):
+    """The model's state for the first frame of time-major ``frames`` (its
+    ``init_state``): where every rollout over a video starts."""
+    return model.init_state(jax.tree_util.tree_map(lambda x: x[0], frames))
 
 
 def _body(step, params, remat):

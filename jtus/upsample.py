@@ -48,9 +48,8 @@ def upsample(entry, frames):
 
     validate(frames, time_major=True)
     fj = jax.tree_util.tree_map(jnp.asarray, frames)
-    first = jax.tree_util.tree_map(lambda a: a[0], fj)
     run = jax.jit(lambda p, s, f: rollout.outputs(entry.model.step, p, s, f)[0])
-    return np.asarray(run(entry.params, entry.model.init_state(first), fj))[:, 0]
+    return np.asarray(run(entry.params, rollout.first_state(entry.model, fj), fj))[:, 0]
 
 
 def write_mp4(path, frames_lr, outputs, factor, fps=30):
@@ -71,8 +70,8 @@ def write_mp4(path, frames_lr, outputs, factor, fps=30):
 
 
 def main(argv=None):
+    from jtus import models
     from jtus.data import exr
-    from jtus.evaluate import resolve
 
     p = argparse.ArgumentParser(prog="python -m jtus.upsample", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -89,7 +88,7 @@ def main(argv=None):
     from jtus.cli import sigterm_as_exit
     sigterm_as_exit()
     try:
-        entry = resolve(args.model, args.factor)
+        entry = models.load(args.model, args.factor)
         if entry is None:
             raise ValueError(f"model {args.model!r} is not available at {args.factor}x")
         frames = _load_input(args)

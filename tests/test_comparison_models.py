@@ -9,7 +9,8 @@ import numpy as np
 import optax
 import pytest
 
-from jtus import evaluate, losses, models, rollout, train
+from jtus import evaluate, models, recipe, rollout, train
+from jtus.config import PRESETS
 from jtus.data import dataset
 from jtus.models import kpn, mlp, nsrr
 from jtus.models.base import param_count
@@ -140,11 +141,11 @@ def tiny_data(tmp_path_factory):
 
 @pytest.mark.parametrize("name,loss", [("nsrr-fast", "ssim"), ("kpn", "kpn"), ("mlp", "l1")])
 def test_trains_with_decreasing_loss_and_evaluates(tiny_data, tmp_path, name, loss):
-    config = dataclasses.replace(train.PRESETS["tiny"], model=name, loss=loss, dataset=tiny_data,
+    config = dataclasses.replace(PRESETS["tiny"], model=name, loss=loss, dataset=tiny_data,
                                  epochs=1, lr=3e-3)
-    model = train._model(config)
+    model = recipe.model_for(config)
     opt = optax.adam(config.lr)
-    step = train.make_train_step(model, train._loss(config), opt, loss_frames=2)
+    step = train.make_train_step(model, recipe.loss_for(config), opt, loss_frames=2)
     ts = train.create_train_state(model.init(jax.random.PRNGKey(0)), opt)
     with dataset.Dataset(tiny_data) as ds:
         batch = ds.crops("train", 4, 2, 4, 16, np.random.default_rng(0))
@@ -172,3 +173,19 @@ def test_registry_builds_every_model():
         outs, _ = rollout.outputs(m.step, m.init(jax.random.PRNGKey(0)), m.init_state(_first(frames)),
                                   frames)
         assert outs.shape == (2, 1, 32, 32, 3) and np.all(np.isfinite(np.asarray(outs))), name
+
+
+def test_every_registered_model_has_a_cost_and_its_hooks():
+    """What the registry promises each tool (jtus.cost, train, evaluate): a positive
+    cost at any size, parameters exactly for the trainable names, a known loss."""
+    from jtus import cost, losses
+
+    for name, spec in models.REGISTRY.items():
+        m = spec.make(spec.config(4))
+        c = cost.cost(name, m.config, 64, 64)
+        assert c.flops > 0 and c.bytes > 0, name
+        n = models.param_count(jax.eval_shape(m.init, jax.random.PRNGKey(0)))
+        assert (n > 0) == spec.trainable == (name in models.TRAINABLE), name
+        assert spec.loss in losses.NAMES, name
+    assert models.spec("mlp").accept is mlp.acceptance
+    assert models.spec("kpn").loss == "kpn"

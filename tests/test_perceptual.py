@@ -101,7 +101,8 @@ def test_training_config_adds_the_term_to_any_loss(vgg_file, loss):
 
     import jax.numpy as jnp
 
-    from jtus import train
+    from jtus import recipe
+    from jtus.config import Config
     from jtus.frame import Frame
 
     _, path = vgg_file
@@ -111,8 +112,8 @@ def test_training_config_adds_the_term_to_any_loss(vgg_file, loss):
     frame = Frame(jnp.asarray(rng.random((1, 8, 8, 3)), jnp.float32), jnp.ones((1, 8, 8, 1)),
                   jnp.zeros((1, 8, 8, 2)), jnp.full((1, 2), 0.5))
     args = (out, tgt, out, tgt, jnp.asarray([True]), frame)
-    base = train.Config(loss=loss)
+    base = Config(loss=loss)
     with_term = dataclasses.replace(base, perceptual_weights=path, perceptual_weight=0.5)
     term = perceptual.loss(perceptual.load_vgg16(path), out, tgt)
-    np.testing.assert_allclose(float(train._loss(with_term)(*args)),
-                               float(train._loss(base)(*args)) + 0.5 * float(term), rtol=1e-5)
+    np.testing.assert_allclose(float(recipe.loss_for(with_term)(*args)),
+                               float(recipe.loss_for(base)(*args)) + 0.5 * float(term), rtol=1e-5)

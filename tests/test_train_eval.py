@@ -9,7 +9,8 @@ import jax
 import numpy as np
 import pytest
 
-from jtus import evaluate, train, upsample
+from jtus import evaluate, models, recipe, train, upsample
+from jtus.config import PRESETS
 from jtus.data import dataset
 
 
@@ -21,7 +22,7 @@ def tiny_data(tmp_path_factory):
 
 
 def _config(tiny_data, **kw):
-    return dataclasses.replace(train.PRESETS["tiny"], **{"dataset": tiny_data, "epochs": 3, **kw})
+    return dataclasses.replace(PRESETS["tiny"], **{"dataset": tiny_data, "epochs": 3, **kw})
 
 
 def _leaves(params):
@@ -45,8 +46,8 @@ def test_killed_run_resumes_to_the_same_parameters(tiny_data, tmp_path):
         assert (tmp_path / "cut" / name).exists()
     assert not [f for f in os.listdir(tmp_path / "cut") if f.endswith(".tmp")]
     # exported parameters load back unchanged, with their config
-    path = train.export_params(str(tmp_path / "full"), str(tmp_path / "shipped" / "m-x4"))
-    params, cfg = train.load_params(path, str(tmp_path / "shipped" / "m-x4.json"))
+    path = recipe.export_params(str(tmp_path / "full"), str(tmp_path / "shipped" / "m-x4"))
+    params, cfg = models.load_params(path, str(tmp_path / "shipped" / "m-x4.json"))
     assert cfg == config
     for a, b in zip(_leaves(full), _leaves(params)):
         np.testing.assert_array_equal(a, b)
@@ -156,13 +157,13 @@ def test_evaluate_refuses_ambiguous_or_empty_model_lists(tiny_data, tmp_path, ca
     ckpt = str(work / "checkpoint.msgpack")
     base = ["--dataset", tiny_data, "--factor", "4", "--out", str(tmp_path / "e"), "--quiet",
             "--no-crops"]
-    for models, msg in ((["tus", "tus"], "more than once"),
-                        ([f"a={ckpt}", f"a={ckpt}"], "more than once"),
-                        (["dlctus"], "needs weights"), (["kpn"], "needs weights"),
-                        (["nerf"], "not a model")):
+    for specs, msg in ((["tus", "tus"], "more than once"),
+                       ([f"a={ckpt}", f"a={ckpt}"], "more than once"),
+                       (["dlctus"], "needs weights"), (["kpn"], "needs weights"),
+                       (["nerf"], "not a model")):
         capsys.readouterr()
-        assert evaluate.main(base + ["--models"] + models) == 2, models
-        assert msg in capsys.readouterr().err, models
+        assert evaluate.main(base + ["--models"] + specs) == 2, specs
+        assert msg in capsys.readouterr().err, specs
     assert evaluate.main(base + ["--models", "tus", "--videos", "objects*"]) == 0
     assert evaluate.main(base + ["--models", "tus", "--videos", "nothing*"]) == 2
     assert "match 'nothing*'" in capsys.readouterr().err
@@ -177,9 +178,9 @@ def test_load_params_checks_structure_shapes_and_values(tiny_data, tmp_path):
 
     work = tmp_path / "run"
     train.train_and_evaluate(_config(tiny_data, epochs=1), work, progress=False)
-    good, _ = train.load_params(str(work / "checkpoint.msgpack"))
+    good, _ = models.load_params(str(work / "checkpoint.msgpack"))
     base = str(tmp_path / "p")
-    train.export_params(str(work), base)
+    recipe.export_params(str(work), base)
     path, cfg = base + ".msgpack", base + ".json"
 
     def write(obj):
@@ -196,7 +197,7 @@ def test_load_params_checks_structure_shapes_and_values(tiny_data, tmp_path):
                      ({"params": ints}, "dtype int32"), ({"params": nans}, "NaN or Inf")):
         write(obj)
         with pytest.raises(ValueError, match=re.escape(msg)) as e:
-            train.load_params(path)
+            models.load_params(path)
         assert "p.msgpack" in str(e.value)
     write({"params": good})
     with open(cfg) as fh:
@@ -204,4 +205,19 @@ def test_load_params_checks_structure_shapes_and_values(tiny_data, tmp_path):
     with open(cfg, "w") as fh:
         json.dump({**data, "colour": 1}, fh)
     with pytest.raises(ValueError, match=r"p.json: unknown config keys \['colour'\]"):
-        train.load_params(path)
+        models.load_params(path)
+
+
+def test_epoch_log_keeps_gradient_norms_and_collapse_reads_it(tiny_data, tmp_path):
+    _, hist = train.train_and_evaluate(_config(tiny_data, epochs=1), tmp_path, progress=False)
+    rec = hist[0]
+    assert 0 < rec["grad_norm"] <= rec["grad_norm_max"] and rec["param_norm"] > 0
+    assert "grad_norm" in (tmp_path / "metrics.csv").read_text().splitlines()[0]
+    assert train.collapsed(hist) is None
+    flat = [dict(rec, epoch=e, grad_norm=0.0, grad_norm_max=0.0) for e in (1, 2)]
+    assert "gradient norm" in train.collapsed(flat)
+    same = [dict(rec, epoch=e, val_loss=0.25) for e in (1, 2, 3)]
+    assert "validation loss" in train.collapsed(same)
+    # a log written before the norms were kept (old runs resume) still reads
+    old = [{k: v for k, v in rec.items() if "norm" not in k}]
+    assert train.collapsed(old) is None

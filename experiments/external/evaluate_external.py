@@ -20,7 +20,7 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 from common import write  # noqa: E402
 
-from jtus import evaluate  # noqa: E402
+from jtus import evaluate, models  # noqa: E402
 
 CLIPS = ("library", "fence", "turntable")
 
@@ -34,7 +34,7 @@ def main():
     args = p.parse_args()
     rows, data = [], {}
     for f in (4, 2):
-        entries = evaluate.resolve_all(args.models, f)
+        entries = models.load_all(args.models, f)
         pooled = {e.label: {"psnr": [], "ssim": [], "temporal": []} for e in entries}
         for clip in CLIPS:
             path = os.path.join(args.data, f"{clip}-x{f}.h5")

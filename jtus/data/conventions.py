@@ -15,6 +15,10 @@ from __future__ import annotations
 
 import numpy as np
 
+# the clip planes every jtus scene, model and import assumes unless told otherwise
+# (device depth is D3D's far/(far-near) (1 - near/z)); datasets record theirs
+NEAR, FAR = 0.1, 100.0
+
 MOTION_UNITS = ("pixels", "uv", "ndc")
 DEPTH_KINDS = ("device", "reversed", "linear", "view")
 JITTER_KINDS = ("unit", "centered")

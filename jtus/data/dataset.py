@@ -4,7 +4,8 @@ Layout (``docs/data.md``)::
 
     /                  attrs: format="jtus-dataset", version, spp, mip_bias, spp_match,
                               conventions (JSON), factors, size
-    /{split}/{video}/  attrs: scene, effects (JSON), length
+    /{split}/{video}/  attrs: scene, effects (JSON), length, index, jitter_sequence,
+                              jitter_phase, near, far (the depth's clip planes)
         target   [T,H,W,3]  float16, linear RGB in [0,1]
         reset    [T]        bool, True at the first frame and at camera cuts
         x{f}/    attrs: mip_bias (eq. 47 for this factor)
@@ -19,16 +20,15 @@ complete, so an interrupted ``generate`` leaves nothing behind.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import json
 import math
 import os
-import tempfile
 
 import h5py
 import numpy as np
 
+from jtus.files import atomic_path, read_json_fields  # noqa: F401 (re-exported)
 from jtus.frame import Frame
 
 FORMAT = "jtus-dataset"
@@ -113,45 +113,6 @@ def mip_bias(factor, spp_match):
     return -0.5 * math.log2(factor * factor) - 0.5 * math.log2(spp_match)
 
 
-@contextlib.contextmanager
-def atomic_path(path):
-    """Yield a temporary path beside ``path``; rename it onto ``path`` on success and
-    delete it on any failure (including KeyboardInterrupt)."""
-    path = os.fspath(path)
-    d = os.path.dirname(os.path.abspath(path))
-    os.makedirs(d, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=os.path.basename(path) + ".", suffix=".tmp", dir=d)
-    os.close(fd)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file ordinary permissions
-    try:
-        yield tmp
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.remove(tmp)
-        raise
-
-
-def read_json_fields(path, cls, what):
-    """A JSON file holding one object whose keys are fields of dataclass ``cls``:
-    the dict, or ``ValueError`` naming ``path`` (invalid JSON, not an object, unknown
-    keys; ``what`` names the kind of keys in messages, e.g. "config keys")."""
-    try:
-        with open(path) as fh:
-            data = json.load(fh)
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{path}: not valid JSON ({e})") from e
-    fields = {f.name for f in dataclasses.fields(cls)}
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: expected a JSON object of {cls.__name__} keys")
-    unknown = sorted(set(data) - fields)
-    if unknown:
-        raise ValueError(f"{path}: unknown {what} {unknown}; expected some of {sorted(fields)}")
-    return data
-
-
 def _chunks(shape, t=8, s=64):
     return (min(t, shape[0]),) + tuple(min(s, n) for n in shape[1:3]) + tuple(shape[3:])
 
@@ -172,7 +133,7 @@ def write_video(group, video, factors, spp_match):
         g.create_dataset("jitter", data=v["jitter"].astype(np.float32))
 
 
-def _root_attrs(fh, size, factors, spp, spp_match):
+def write_root_attrs(fh, size, factors, spp, spp_match):
     fh.attrs.update({"format": FORMAT, "version": VERSION, "spp": spp, "spp_match": spp_match,
                      "mip_bias": 0.0 - 0.5 * math.log2(spp_match), "factors": list(factors),
                      "size": list(size), "conventions": json.dumps(CONVENTIONS)})
@@ -203,7 +164,7 @@ def generate(name_or_preset, out, progress=True, scenes=None, custom=None):
     bar = tqdm(total=p.total_frames(), unit="frame", desc=f"generate {out}", disable=not progress)
     renderers = {}
     with atomic_path(out) as tmp, h5py.File(tmp, "w") as fh:
-        _root_attrs(fh, p.size, p.factors, p.spp, p.spp_match)
+        write_root_attrs(fh, p.size, p.factors, p.spp, p.spp_match)
         for split in SPLITS:
             names, per_scene, length = p.splits[split]
             for name in names:
@@ -221,7 +182,8 @@ def generate(name_or_preset, out, progress=True, scenes=None, custom=None):
                     g = fh.create_group(f"{split}/{name}_{i:02d}")
                     g.attrs.update({"scene": name, "effects": json.dumps(list(r.scene.effects)),
                                     "length": length, "index": i, "jitter_sequence": jit,
-                                    "jitter_phase": phase})
+                                    "jitter_phase": phase, "near": r.scene.near,
+                                    "far": r.scene.far})
                     write_video(g, video, p.factors, p.spp_match)
         fh.flush()
     bar.close()

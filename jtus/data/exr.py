@@ -1,8 +1,8 @@
 """EXR in and out: per-frame EXR sequences from external renderers to the HDF5 layout,
 and any sequence back to EXR or PNG.
 
-OpenEXR facts this module respects (``../shared/FINDINGS.md``): arrays must be
-C-contiguous or they are written wrong, a multi-component array under one key becomes
+Facts of OpenEXR's Python bindings this module respects: arrays must be
+C-contiguous or they are silently written wrong (``mv[..., 0]``, ``rgb[..., ::-1]``), a multi-component array under one key becomes
 three channels, header and pixels must be copied inside the ``with`` block, and
 channels are stored alphabetically (read them by name).
 
@@ -17,6 +17,7 @@ import os
 import numpy as np
 
 from jtus.data import conventions
+from jtus.data.conventions import FAR, NEAR
 
 IMAGE_FORMATS = ("exr", "png")
 
@@ -76,8 +77,8 @@ class ImportSpec:
     motion_y_up: bool = False
     motion_negate: bool = False      # the source stores current minus previous position
     depth_kind: str = "device"       # device | reversed | linear | view
-    near: float = 0.1
-    far: float = 100.0
+    near: float = NEAR
+    far: float = FAR
     jitter: object = "thesis"        # "thesis", a list of [x, y] per frame, or one [x, y]
     jitter_kind: str = "unit"        # unit [0,1) | centered [-0.5, 0.5)
     jitter_y_up: bool = False
@@ -112,7 +113,7 @@ class ImportSpec:
 
     @classmethod
     def from_json(cls, path):
-        from jtus.data.dataset import read_json_fields
+        from jtus.files import read_json_fields
 
         data = read_json_fields(path, cls, "keys")
         data = {k: tuple(v) if isinstance(v, list) and k in ("color", "motion", "target_color")
@@ -253,10 +254,10 @@ def import_exr(input_dir, target_dir, factor, out, spec: ImportSpec = ImportSpec
     video = load_sequence(input_dir, target_dir, factor, spec)
     T, H, W, _ = video["target"].shape
     with dataset.atomic_path(out) as tmp, h5py.File(tmp, "w") as fh:
-        dataset._root_attrs(fh, (H, W), (factor,), spp=0, spp_match=1)
+        dataset.write_root_attrs(fh, (H, W), (factor,), spp=0, spp_match=1)
         g = fh.create_group(f"{split}/{name}")
         g.attrs.update({"scene": f"exr:{os.path.abspath(input_dir)}", "effects": "[]",
-                        "length": T, "index": 0})
+                        "length": T, "index": 0, "near": spec.near, "far": spec.far})
         dataset.write_video(g, video, (factor,), 1)
     return out
 

@@ -1,9 +1,10 @@
 """The shape every jtus model has: a NamedTuple of pure functions, after optax's
-``GradientTransformation``."""
+``GradientTransformation``; and the record (``Spec``) by which a model module tells
+the registry (``jtus.models``) its names, configs, loss, cost and data hooks."""
 
 from __future__ import annotations
 
-from typing import Any, Callable, NamedTuple
+from typing import Any, Callable, NamedTuple, Optional
 
 import jax.numpy as jnp
 
@@ -26,6 +27,38 @@ class Model(NamedTuple):
     init_state: Callable[..., Any]
     step: Callable[..., Any]
     config: Any
+
+
+def bind(config, step, init=None, init_state=None) -> Model:
+    """A ``Model`` of module functions ``step(params, state, frame, config)``,
+    ``init(key, config)`` and ``init_state(frame, config)`` with ``config`` bound; a
+    model without parameters (or without state) leaves ``init`` (``init_state``) out
+    and gets ``{}`` (``()``)."""
+    return Model(init=(lambda key: init(key, config)) if init else (lambda key: {}),
+                 init_state=((lambda frame: init_state(frame, config)) if init_state
+                             else (lambda frame: ())),
+                 step=lambda params, state, frame: step(params, state, frame, config),
+                 config=config)
+
+
+class Cost(NamedTuple):
+    """Analytic cost of one frame (``jtus.cost``)."""
+    flops: float             # per frame
+    network_flops: float     # the convolution part
+    bytes: float             # compulsory, float32
+    activation_bytes: float  # plus the network's intermediates written and read once
+
+
+class Spec(NamedTuple):
+    """One registered model name. A model module lists its ``SPECS``; the registry in
+    ``jtus/models/__init__.py`` collects them (docs/architecture.md)."""
+    name: str
+    make: Callable[[Any], Model]
+    config: Callable[[int], Any]        # factor -> the module's Config for this name
+    cost: Callable[[Any, int, int], Cost]  # (config, H, W) -> Cost, H x W the output
+    trainable: bool = False
+    loss: str = "l1"                    # the loss it trains with (``jtus.losses.make``)
+    accept: Optional[Callable] = None   # target crop [T,H,W,3] -> keep probability
 
 
 def compute_dtype(name):

@@ -37,10 +37,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from jtus import sampling
-from jtus.data.conventions import linearize_depth
+from jtus.data.conventions import FAR, NEAR, linearize_depth
 from jtus.frame import Frame
 from jtus.models import layers
-from jtus.models.base import Model, carry_dtype, compute_dtype, reset_select
+from jtus.models.base import (Cost, Model, Spec, bind, carry_dtype, compute_dtype,
+                              reset_select)
 
 FORMULATIONS = ("standard", "opt1", "opt2")
 CONV_BACKWARDS = ("autodiff", "custom")
@@ -50,8 +51,8 @@ DOWN = 4  # the network works at 1/4 of the HR resolution
 @dataclasses.dataclass(frozen=True)
 class Config:
     factor: int = 4
-    near: float = 0.1
-    far: float = 100.0
+    near: float = NEAR
+    far: float = FAR
     warp: str = "bicubic"        # any jtus.sampling method
     warp_a: float = -0.75        # Keys parameter of the cubic warps (PyTorch's)
     accumulation: bool = True
@@ -202,7 +203,6 @@ def prepare(state: State, frame: Frame, config: Config):
     ``network``."""
     f = config.factor
     color, depth, motion, jitter = _cast(frame, config)
-    b, h, w, _ = color.shape
     # The named scopes label the HLO for profiles (python -m jtus.profile).
     with jax.named_scope("input_upsampling"):
         lr = jnp.concatenate([color, linearize_depth(depth, config.near, config.far)], -1)
@@ -212,7 +212,7 @@ def prepare(state: State, frame: Frame, config: Config):
         if not config.accumulation:
             history = history.at[..., 3].set(1.0)
         mv = sampling.dilate_motion(motion, depth) if config.dilation else motion
-        xy = sampling.pixel_grid(b, h * f, w * f, mv.dtype) + f * sampling.upsample(mv, f)
+        xy = sampling.reproject_coords(mv, f)
         rep, inside = sampling.sample(history, xy, config.warp, a=config.warp_a,
                                       return_mask=True)
         hist = jnp.where(inside, rep, jau)
@@ -233,10 +233,27 @@ def step(params, state: State, frame: Frame, config: Config = Config()):
 
 
 def make(config: Config = Config()) -> Model:
-    return Model(init=lambda key: init(key, config),
-                 init_state=lambda frame: init_state(frame, config),
-                 step=lambda params, state, frame: step(params, state, frame, config),
-                 config=config)
+    return bind(config, step, init=init, init_state=init_state)
+
+
+def cost(config: Config, H, W) -> Cost:
+    """FLOPs and bytes of one H x W output frame (``jtus.cost``)."""
+    n = (H // 4) * (W // 4)
+    c = config.channels
+    down = n * c * (4 * 4 * 8) * 2
+    convs = 2 * config.blocks * n * c * c * 9 * 2
+    net = down + convs + n * c * config.blocks * 3  # bias, ReLU, residual add
+    px = H * W
+    warp = sampling.TAPS[config.warp] * 4 * 2 + 20  # 4 channels, plus the tap weights
+    prep = px * (warp + 4 * 4 * 2 + 2 * 4 * 2 + 8)  # JAU, motion up-sampling, zero-up
+    out = px * 4 * 4  # eq. 44-45 and clamps
+    lr = px // (config.factor ** 2)
+    compulsory = 4 * (lr * 6 + 2 * px * 4 + px * 3)
+    act = 4 * 2 * (px * 8 + n * c * (1 + 2 * config.blocks) + px * 2)
+    return Cost(net + prep + out, net, compulsory, compulsory + act)
+
+
+SPECS = (Spec("dlctus", make, lambda f: Config(factor=f), cost, trainable=True),)
 
 
 # ---------------------------------------------------------------- PyTorch interop

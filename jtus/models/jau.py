@@ -8,7 +8,7 @@ import jax.numpy as jnp
 
 from jtus import sampling
 from jtus.frame import Frame
-from jtus.models.base import Model
+from jtus.models.base import Cost, Model, Spec, bind
 
 
 @dataclasses.dataclass(frozen=True)
@@ -31,6 +31,15 @@ def step(params, state, frame: Frame, config: Config = Config()):
 
 
 def make(config: Config = Config()) -> Model:
-    return Model(init=lambda key: {}, init_state=lambda frame: (),
-                 step=lambda params, state, frame: step(params, state, frame, config),
-                 config=config)
+    return bind(config, step)
+
+
+def cost(config: Config, H, W) -> Cost:
+    px = H * W
+    taps = sampling.TAPS[config.method]
+    lr = px // (config.factor ** 2)
+    return Cost(px * 3 * taps * 2 + px * 10, 0.0, 4 * (lr * 3 + px * 3), 4 * (lr * 3 + px * 3))
+
+
+SPECS = (Spec("jau", make, lambda f: Config(factor=f), cost),
+         Spec("jau-bicubic", make, lambda f: Config(factor=f, method="bicubic"), cost))

@@ -24,10 +24,10 @@ import jax
 import jax.numpy as jnp
 
 from jtus import sampling
-from jtus.data.conventions import linearize_depth
+from jtus.data.conventions import FAR, NEAR, linearize_depth
 from jtus.frame import Frame
 from jtus.models import layers
-from jtus.models.base import Model, reset_select
+from jtus.models.base import Cost, Model, Spec, bind, reset_select
 
 HIDDEN = 5
 K = 5  # kernel size
@@ -40,8 +40,8 @@ class Config:
     factor: int = 4
     width: int = 12
     jitter: str = "thesis"   # the sequence whose index selects the weight set
-    near: float = 0.1
-    far: float = 100.0
+    near: float = NEAR
+    far: float = FAR
 
     def phases(self):
         return sampling.jitter_sequence(self.jitter, self.factor)
@@ -83,13 +83,12 @@ def _switched_conv(x, p, phase):
 
 def prepare(state: State, frame: Frame, config: Config):
     f = config.factor
-    b, h, w, _ = frame.color.shape
     jit = frame.jitter.astype(jnp.float32)
     jau = sampling.jitter_aligned_upsample(frame.color.astype(jnp.float32), jit, f)
     mv = f * sampling.upsample(frame.motion.astype(jnp.float32), f)
     depth = sampling.upsample(linearize_depth(frame.depth.astype(jnp.float32), config.near,
                                               config.far), f)
-    xy = sampling.pixel_grid(b, h * f, w * f) + mv
+    xy = sampling.reproject_coords(frame.motion.astype(jnp.float32), f)
     rep, inside = sampling.sample(state.history, xy, "catmull_rom", return_mask=True)
     rep = jnp.where(inside, rep, 0.0)
     # a reset frame's history is the fresh input, unwarped (base.reset_select)
@@ -128,46 +127,32 @@ def init_state(frame: Frame, config: Config = Config()) -> State:
 
 
 def make(config: Config = Config()) -> Model:
-    return Model(init=lambda key: init(key, config),
-                 init_state=lambda frame: init_state(frame, config),
-                 step=lambda params, state, frame: step(params, state, frame, config),
-                 config=config)
+    return bind(config, step, init=init, init_state=init_state)
 
 
-def alias_mask(jau, target, sensitivity=4.0):
-    """Herveau et al.'s per-pixel aliasing mask: the summed channel differences between
-    the (jitter-aligned) input and the reference, scaled, clipped to [0, 1], 3x3-dilated."""
-    m = jnp.clip(sensitivity * jnp.abs(jau - target).sum(-1, keepdims=True), 0.0, 1.0)
-    return sampling.neighbourhood(m, 3).max(-1)
+def cost(config: Config, H, W) -> Cost:
+    p = jax.eval_shape(lambda: init(jax.random.PRNGKey(0), config))
+    px, lr = H * W, H * W // config.factor ** 2
+
+    def conv(shape, n):
+        kh, kw, ci, co = shape[-4:]
+        return (kh * kw * ci * co * 2 + co) * n
+
+    net = sum(conv(p[k]["kernel"].shape, px) for k in ("conv1", "conv2", "conv3", "hidden",
+                                                       "kernel"))
+    n = 2 * K * K
+    apply = px * (n * 3 * 2 + n * 4)  # the two kernels on 3 channels, softmax
+    warp = px * (16 * 8 * 2 + 20) + px * 4 * 3 * 2
+    compulsory = 4 * (lr * 6 + 2 * px * 8 + px * 3)
+    act = 4 * 2 * px * (IN_CHANNELS + 3 * config.width + n + HIDDEN)
+    return Cost(net + apply + warp, net, compulsory, compulsory + act)
 
 
-def make_loss(factor, weights=(1.0, 1.0, 10.0), alias_boost=1.5, sensitivity=4.0):
-    """The paper's training loss (sec. 5.3): reference (L1), gradient (L1 of x and y
-    differences) and temporal (the current error against the warped previous error)
-    terms, each split by the alias mask M into ``alias_boost * M`` and ``1 - M`` parts."""
-    from jtus import losses
-
-    wr, wg, wt = weights
-
-    def grad(x):
-        return x[:, 1:, :-1] - x[:, :-1, :-1], x[:, :-1, 1:] - x[:, :-1, :-1]
-
-    def loss(out, target, prev_out, prev_target, has_prev, frame):
-        jau = sampling.jitter_aligned_upsample(frame.color.astype(jnp.float32),
-                                               frame.jitter.astype(jnp.float32), factor)
-        m = alias_mask(jau, target, sensitivity)
-        wgt = alias_boost * m + (1 - m)
-        ref = jnp.mean(wgt * jnp.abs(out - target))
-        gy_o, gx_o = grad(out)
-        gy_t, gx_t = grad(target)
-        wc = wgt[:, :-1, :-1]
-        g = jnp.mean(wc * (jnp.abs(gy_o - gy_t) + jnp.abs(gx_o - gx_t)))
-        x, y = losses.errors(out, target, prev_out, prev_target, has_prev, frame, factor)
-        t = jnp.mean(wgt * jnp.abs(x - y))
-        return wr * ref + wg * g + wt * t
-
-    return loss
+# trained with the paper's alias-masked loss (jtus.losses.kpn_loss)
+SPECS = (Spec("kpn", make, lambda f: Config(factor=f), cost, trainable=True, loss="kpn"),)
 
 
-__all__ = ["Config", "State", "alias_mask", "init", "init_state", "kernels", "make",
-           "make_loss", "phase_index", "prepare", "step"]
+
+
+__all__ = ["Config", "SPECS", "State", "cost", "init", "init_state", "kernels", "make",
+           "phase_index", "prepare", "step"]

@@ -1,8 +1,10 @@
 """Convolutions for the networks, NHWC / HWIO, written for XLA:CPU's fast paths.
 
-``../shared/FINDINGS.md``: edge-padded VALID convolutions are 2-3x slower than SAME
-ones on XLA:CPU, so a replicate-padded 3x3 convolution is computed as edge pad by
-one, SAME convolution, crop by one (identical values, SAME speed).
+On XLA:CPU edge-padded VALID convolutions are 2-3x slower than SAME ones (no XLA flag
+helps: oneDNN, XNNPACK, the thunk runtime and Eigen threading were tried), so a
+replicate-padded 3x3 convolution is computed as edge pad by one, SAME convolution,
+crop by one (identical values, SAME speed). ``python experiments/conv_padding.py``
+measures both (docs/performance.md).
 """
 
 from __future__ import annotations
@@ -62,7 +64,7 @@ def conv_edge_fast(x, kernel, bias):
     """``conv_edge`` with a backward pass made of standard-layout ops only.
 
     On XLA:CPU the autodiff backward of a convolution inside a rolled ``lax.scan``
-    falls back to a slow path (``../shared/FINDINGS.md``). Here the kernel gradient
+    falls back to a slow path (14x slower training step, docs/performance.md). Here the kernel gradient
     is one small matmul per kernel tap (``x`` shifted by the tap, transposed, times
     the output gradient), and the input gradient a SAME convolution with the flipped,
     transposed kernel followed by the adjoint of the edge padding. The padded input is

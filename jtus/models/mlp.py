@@ -20,10 +20,10 @@ import jax
 import jax.numpy as jnp
 
 from jtus import sampling
-from jtus.data.conventions import linearize_depth
+from jtus.data.conventions import FAR, NEAR, linearize_depth
 from jtus.frame import Frame
 from jtus.models import layers
-from jtus.models.base import Model
+from jtus.models.base import Cost, Model, Spec, bind
 
 P = 5
 
@@ -34,8 +34,8 @@ class Config:
     hidden: tuple = (50, 50)
     gamma: float = 1.0        # residual boost: sign(r) |r|^(1/gamma)
     slope: float = 0.01       # leaky ReLU
-    near: float = 0.1
-    far: float = 100.0
+    near: float = NEAR
+    far: float = FAR
 
 
 def init(key, config: Config = Config()):
@@ -77,6 +77,15 @@ def acceptance(target, scale=0.05):
 
 
 def make(config: Config = Config()) -> Model:
-    return Model(init=lambda key: init(key, config), init_state=lambda frame: (),
-                 step=lambda params, state, frame: step(params, state, frame, config),
-                 config=config)
+    return bind(config, step, init=init)
+
+
+def cost(config: Config, H, W) -> Cost:
+    lr = H * W // config.factor ** 2
+    sizes = (50,) + tuple(config.hidden) + (config.factor ** 2,)
+    dense = sum(i * o * 2 + o for i, o in zip(sizes[:-1], sizes[1:])) * lr * 3
+    compulsory = 4 * (lr * 4 + H * W * 3)
+    return Cost(dense + lr * 3 * 60, dense, compulsory, compulsory + 4 * 2 * lr * 3 * sum(sizes))
+
+
+SPECS = (Spec("mlp", make, lambda f: Config(factor=f), cost, trainable=True, accept=acceptance),)

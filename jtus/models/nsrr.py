@@ -32,10 +32,10 @@ import jax
 import jax.numpy as jnp
 
 from jtus import sampling
-from jtus.data.conventions import linearize_depth
+from jtus.data.conventions import FAR, NEAR, linearize_depth
 from jtus.frame import Frame
 from jtus.models import layers
-from jtus.models.base import Model
+from jtus.models.base import Cost, Model, Spec, bind
 
 FEATURES = 12  # 8 learned + RGB-D
 
@@ -50,8 +50,8 @@ class Config:
     fast: bool = False
     ycbcr: bool = False
     scale: float = 10.0
-    near: float = 0.1
-    far: float = 100.0
+    near: float = NEAR
+    far: float = FAR
 
     def __post_init__(self):
         if self.extract[-1] != FEATURES - 4:
@@ -155,13 +155,11 @@ def reweight_maps(params, cur, warped, config):
 
 def step(params, state: State, frame: Frame, config: Config = Config()):
     f = config.factor
-    b, h, w, _ = frame.color.shape
     previous = state.previous
     if frame.reset is not None:
         previous = jnp.where(frame.reset[:, None, None, None], 0.0, previous)
     cur, as_prev = features(params, frame, config)
-    xy = sampling.pixel_grid(b, h * f, w * f) + f * sampling.upsample(
-        frame.motion.astype(jnp.float32), f)
+    xy = sampling.reproject_coords(frame.motion.astype(jnp.float32), f)
     warped, inside = sampling.sample(previous, xy, "bilinear", return_mask=True)
     warped = jnp.where(inside, warped, 0.0)
     wts = reweight_maps(params, cur, warped, config)
@@ -175,7 +173,29 @@ def step(params, state: State, frame: Frame, config: Config = Config()):
 
 
 def make(config: Config = Config()) -> Model:
-    return Model(init=lambda key: init(key, config),
-                 init_state=lambda frame: init_state(frame, config),
-                 step=lambda params, state, frame: step(params, state, frame, config),
-                 config=config)
+    return bind(config, step, init=init, init_state=init_state)
+
+
+def _conv_flops(kernel_shape, px):
+    kh, kw, ci, co = kernel_shape[-4:]
+    return (kh * kw * ci * co * 2 + co) * px
+
+
+def cost(config: Config, H, W) -> Cost:
+    p = jax.eval_shape(lambda: init(jax.random.PRNGKey(0), config))
+    px, lr = H * W, H * W // config.factor ** 2
+    ext = sum(_conv_flops(q["kernel"].shape, lr) for k in ("extract_current", "extract_previous")
+              for q in p[k])
+    rew = sum(_conv_flops(q["kernel"].shape, px) for q in p["reweight"])
+    scales = [px, px, px // 4, px // 4, px // 16, px // 16, px // 4, px // 4, px, px]
+    unet = sum(_conv_flops(q["kernel"].shape, n) for q, n in zip(p["unet"], scales))
+    feats = FEATURES * config.frames
+    warp = px * feats * 4 * 2
+    compulsory = 4 * (lr * 6 + 2 * px * feats + px * 3)
+    act = 4 * 2 * px * (sum(config.unet_widths()) + feats * 2)
+    return Cost(ext + rew + unet + warp + px * feats, ext + rew + unet, compulsory,
+                compulsory + act)
+
+
+SPECS = (Spec("nsrr", make, lambda f: Config(factor=f), cost, trainable=True),
+         Spec("nsrr-fast", make, lambda f: Config(factor=f, fast=True), cost, trainable=True))

@@ -29,7 +29,7 @@ import jax.numpy as jnp
 
 from jtus import sampling
 from jtus.frame import Frame
-from jtus.models.base import Model, reset_select
+from jtus.models.base import Cost, Model, Spec, bind, reset_select
 
 RECTIFY = ("clamp", "clip", "none")
 FILTERS = ("tent", "gaussian")
@@ -182,13 +182,12 @@ def step(params, state: State, frame: Frame, config: Config = Config()):
     color = frame.color.astype(jnp.float32)
     depth = frame.depth.astype(jnp.float32)
     motion = frame.motion.astype(jnp.float32)
-    b, h, w, _ = color.shape
     xy = _jau_coords(frame, f)
     s, beta_max = _scaled_input(config, frame, color, xy)
     fresh = _fresh(s, config)
     history = state.history
     mv = sampling.dilate_motion(motion, depth) if config.dilation else motion
-    pos = sampling.pixel_grid(b, h * f, w * f) + f * sampling.upsample(mv, f)
+    pos = sampling.reproject_coords(mv, f)
     # Colour and count are read by separate warps (the same values): XLA:CPU splits one
     # 16-tap read whose result feeds two consumers into per-tap gathers several times
     # slower than the whole read (docs/performance.md).
@@ -210,6 +209,18 @@ def step(params, state: State, frame: Frame, config: Config = Config()):
 
 
 def make(config: Config = Config()) -> Model:
-    return Model(init=lambda key: {}, init_state=lambda frame: init_state(frame, config),
-                 step=lambda params, state, frame: step(params, state, frame, config),
-                 config=config)
+    return bind(config, step, init_state=init_state)
+
+
+def cost(config: Config, H, W) -> Cost:
+    px = H * W
+    lr = px // (config.factor ** 2)
+    scaled = px * (3 * 4 * 2 if config.filter == "tent" else 9 * (3 * 2 + 8))
+    warp = px * (sampling.TAPS[config.warp] * 4 * 2 + 20)
+    rect = 0 if config.rectify == "none" else px * 9 * 3 * 3
+    blend = px * 12
+    compulsory = 4 * (lr * 6 + 2 * px * 4 + px * 3)
+    return Cost(scaled + warp + rect + blend, 0.0, compulsory, compulsory)
+
+
+SPECS = tuple(Spec(name, make, preset, cost) for name, preset in PRESETS.items())

@@ -4,16 +4,17 @@ from jtus.sampling.color import rgb_to_ycbcr, rgb_to_ycocg, ycbcr_to_rgb, ycocg_
 from jtus.sampling.jitter import (fsr2, halton, jitter_sequence, thesis_2x2, thesis_4x4,
                                   van_der_corput)
 from jtus.sampling.upsample import (dilate_motion, jitter_aligned_upsample, jitter_cell,
-                                    neighbourhood, pixel_shuffle, pixel_unshuffle, upsample,
+                                    neighbourhood, pixel_shuffle, pixel_unshuffle, reproject_coords,
+                                    upsample,
                                     zero_upsample)
-from jtus.sampling.warp import (CATMULL_ROM_A, METHODS, PYTORCH_A, grid_sample, inside_mask,
-                                keys_weights, pixel_grid, sample)
+from jtus.sampling.warp import (CATMULL_ROM_A, METHODS, PYTORCH_A, TAPS, grid_sample,
+                                inside_mask, keys_weights, pixel_grid, sample)
 
 __all__ = [
-    "CATMULL_ROM_A", "METHODS", "PYTORCH_A", "dilate_motion", "fsr2", "grid_sample", "halton",
+    "CATMULL_ROM_A", "METHODS", "PYTORCH_A", "TAPS", "dilate_motion", "fsr2", "grid_sample", "halton",
     "inside_mask", "jitter_aligned_upsample", "jitter_cell", "jitter_sequence", "keys_weights",
     "neighbourhood",
-    "pixel_grid", "pixel_shuffle", "pixel_unshuffle", "rgb_to_ycbcr", "rgb_to_ycocg", "sample",
+    "pixel_grid", "pixel_shuffle", "pixel_unshuffle", "reproject_coords", "rgb_to_ycbcr", "rgb_to_ycocg", "sample",
     "thesis_2x2", "thesis_4x4", "upsample", "van_der_corput", "ycbcr_to_rgb", "ycocg_to_rgb",
     "zero_upsample",
 ]

@@ -182,3 +182,13 @@ def dilate_motion(motion, depth):
     ds = neighbourhood(depth, 3)[..., order]     # [B,h,w,1,9]
     best = jnp.argmin(ds, axis=-1)               # the first minimum wins
     return jnp.take_along_axis(mvs, best[..., None], axis=-1)[..., 0]
+
+
+def reproject_coords(motion, factor):
+    """Where each HR pixel of the current frame was in the previous one: the HR pixel
+    centres plus the LR backward ``motion [B,h,w,2]`` up-sampled (bilinear) and scaled
+    to HR pixels, ``[B,f*h,f*w,2]`` for ``sample``. Every model's history read and
+    the temporal losses use this one position."""
+    b, h, w, _ = motion.shape
+    dt = jnp.promote_types(motion.dtype, jnp.float32)
+    return pixel_grid(b, h * factor, w * factor, dt) + factor * upsample(motion, factor)

@@ -22,6 +22,9 @@ import jax
 import jax.numpy as jnp
 
 METHODS = ("nearest", "bilinear", "bicubic", "catmull_rom", "bicubic9", "bicubic5")
+# taps each method reads per output pixel and channel (for cost models, ``jtus.cost``)
+TAPS = {"nearest": 1, "bilinear": 4, "bicubic": 16, "catmull_rom": 16, "bicubic9": 36,
+        "bicubic5": 20}
 CATMULL_ROM_A = -0.5
 PYTORCH_A = -0.75
 

@@ -252,7 +252,7 @@ def _cost(args):
     for label, _, sec in rows:
         print(f"| {label} | {sec * 1e3:.0f} | {sec / base:.2f} |")
     if args.out:
-        from jtus.data.dataset import atomic_path
+        from jtus.files import atomic_path
         with atomic_path(args.out) as tmp, open(tmp, "w") as fh:
             json.dump({"seed": args.seed, "size": args.size, "frames": args.frames,
                        "machine": machine,

@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from typing import Optional
+
+from jtus.data.conventions import FAR, NEAR
 
 EFFECTS = ("camera_motion", "object_motion", "thin_geometry", "texture_detail", "shadows",
            "specular", "moving_light", "emissive_flicker", "camera_cut")
@@ -84,8 +85,8 @@ class Scene:
     extra_lights: tuple = ()              # more Lights (point or directional): diffuse,
                                           # shadows and specular as the first; its ambient only
     sky: tuple = ((0.75, 0.8, 0.9), (0.3, 0.45, 0.75))  # horizon, zenith
-    near: float = 0.1
-    far: float = 100.0
+    near: float = NEAR
+    far: float = FAR
 
     def __post_init__(self):
         bad = [e for e in self.effects if e not in EFFECTS]

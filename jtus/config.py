@@ -1,0 +1,123 @@
+"""The configuration of a training run (``Config``), its presets and its JSON form.
+
+A run's ``config.json`` (and the ``.json`` beside exported weights) is
+``to_json(config)``; ``from_json`` reads it back with every field checked, naming the
+file and the field on bad input. ``jtus.recipe`` turns a config into the model, loss,
+optimizer and window plan of a run; ``jtus.train`` runs it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+
+from jtus import losses, rollout
+from jtus.files import read_json_fields
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    """A training run. The presets below are the documented starting points."""
+    model: str = "dlctus"
+    factor: int = 4
+    loss: str = "l1"
+    theta: float = 0.5
+    seq_len: int = 8
+    loss_frames: int = 3
+    mode: str = "bptt"          # bptt | tbptt
+    k1: int = 4
+    k2: int = 8
+    remat: bool = False
+    batch: int = 4
+    crop: int = 64
+    lr: float = 1e-3
+    schedule: str = "constant"  # constant | cosine (warm-up, then cosine decay to lr_end)
+    warmup_steps: int = 0
+    lr_end: float = 0.05        # cosine: final rate as a fraction of lr
+    clip_norm: float = 0.0      # global gradient-norm clip; 0 = off
+    epochs: int = 8
+    steps_per_epoch: int = 100
+    val_batches: int = 2
+    val_videos: int = 4
+    dataset: str = "data/default.h5"
+    data_preset: str = "default"  # generated into ``dataset`` when the file is missing
+    seed: int = 0
+    perceptual_weights: str = ""  # .npz of VGG-16 (jtus.perceptual): adds NSRR's term
+    perceptual_weight: float = 0.1
+    model_overrides: tuple = ()   # (("warp", "bilinear"), ...) for the model's config
+    init_from: str = ""           # start from these parameters (a checkpoint of the same
+                                  # model and factor); the optimizer starts fresh
+
+    def __post_init__(self):
+        positive = ("factor", "seq_len", "batch", "crop", "epochs", "steps_per_epoch",
+                    "val_batches", "val_videos")
+        for name in positive:
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+                raise ValueError(f"{name}: expected a positive integer, got {v!r}")
+        if self.crop % 4 or self.crop % self.factor:
+            raise ValueError(f"crop: expected a multiple of 4 and of factor {self.factor}, "
+                             f"got {self.crop}")
+        for name in ("lr", "theta", "lr_end", "clip_norm", "perceptual_weight"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ValueError(f"{name}: expected a finite number, got {v!r}")
+        if self.lr <= 0:
+            raise ValueError(f"lr: expected > 0, got {self.lr}")
+        if not 0 <= self.lr_end <= 1:
+            raise ValueError(f"lr_end: expected a fraction of lr in [0, 1], got {self.lr_end}")
+        if self.clip_norm < 0 or self.warmup_steps < 0:
+            raise ValueError(f"clip_norm, warmup_steps: expected >= 0, got {self.clip_norm}, "
+                             f"{self.warmup_steps}")
+        if self.mode not in ("bptt", "tbptt"):
+            raise ValueError(f"mode: expected bptt or tbptt, got {self.mode!r}")
+        if self.mode == "bptt" and not 1 <= self.loss_frames <= self.seq_len:
+            raise ValueError(f"loss_frames: expected 1..seq_len={self.seq_len}, "
+                             f"got {self.loss_frames}")
+        if self.mode == "tbptt":
+            rollout.tbptt_windows(self.seq_len, self.k1, self.k2)
+        if self.schedule not in ("constant", "cosine"):
+            raise ValueError(f"schedule: expected constant or cosine, got {self.schedule!r}")
+        if self.loss not in losses.NAMES:
+            raise ValueError(f"loss: expected one of {losses.NAMES}, got {self.loss!r}")
+
+
+PRESETS = {
+    # seconds: for tests
+    "tiny": Config(factor=4, seq_len=4, loss_frames=2, batch=2, crop=16, epochs=2,
+                   steps_per_epoch=2, val_batches=1, val_videos=1, dataset="data/tiny.h5",
+                   data_preset="tiny"),
+    # minutes on 2 CPU cores, on the built-in default data
+    "default": Config(),
+    # thesis sec. 4.3: 256 crops, batch 4, sequence 30, loss on the last 5, Adam 1e-4,
+    # 200 epochs; for a GPU machine and the paper-size data
+    "paper": Config(seq_len=30, loss_frames=5, batch=4, crop=256, lr=1e-4, epochs=200,
+                    steps_per_epoch=500, val_batches=10, val_videos=10,
+                    dataset="data/paper.h5", data_preset="paper"),
+    # generalization (docs/weights.md): the randomized data with every jitter sequence,
+    # crop 128, 16-frame sequences as TBPTT windows of 8 (the best of the sequence-
+    # length sweep, docs/results.md), warm-up then cosine decay, gradient clipping;
+    # 60 epochs x 200 sequences (24,000 optimizer steps), hours on 2 CPU cores:
+    #   nohup python -m jtus.train --preset diverse --factor 4 --workdir runs/diverse-x4 &
+    #   python -m jtus.train --preset diverse --factor 4 --workdir runs/diverse-x4 --resume
+    "diverse": Config(seq_len=16, mode="tbptt", k1=8, k2=8, loss_frames=8, batch=4, crop=128,
+                      lr=1e-3, schedule="cosine", warmup_steps=300, lr_end=0.05,
+                      clip_norm=1.0, epochs=60, steps_per_epoch=200, val_batches=4,
+                      val_videos=8, dataset="data/diverse.h5", data_preset="diverse"),
+}
+
+
+def to_json(config: Config) -> str:
+    return json.dumps(dataclasses.asdict(config), indent=1)
+
+
+def from_json(path) -> Config:
+    """The ``Config`` in the JSON file ``path``; ``ValueError`` naming the file on an
+    unknown key or an invalid value."""
+    data = read_json_fields(path, Config, "config keys")
+    data["model_overrides"] = tuple(tuple(x) for x in data.get("model_overrides", ()))
+    try:
+        return Config(**data)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{path}: {e}") from e

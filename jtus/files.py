@@ -1,0 +1,53 @@
+"""Files written whole or not at all, and JSON files of dataclass fields.
+
+The lowest layer of jtus's I/O: datasets (``jtus.data``), checkpoints
+(``jtus.checkpoint``), exports and the CLIs write through ``atomic_path``, so an
+error or an interrupt never leaves a half-written file where a reader expects one.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import os
+import tempfile
+
+
+@contextlib.contextmanager
+def atomic_path(path):
+    """Yield a temporary path beside ``path``; rename it onto ``path`` on success and
+    delete it on any failure (including KeyboardInterrupt)."""
+    path = os.fspath(path)
+    d = os.path.dirname(os.path.abspath(path))
+    os.makedirs(d, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=os.path.basename(path) + ".", suffix=".tmp", dir=d)
+    os.close(fd)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file ordinary permissions
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.remove(tmp)
+        raise
+
+
+def read_json_fields(path, cls, what):
+    """A JSON file holding one object whose keys are fields of dataclass ``cls``:
+    the dict, or ``ValueError`` naming ``path`` (invalid JSON, not an object, unknown
+    keys; ``what`` names the kind of keys in messages, e.g. "config keys")."""
+    try:
+        with open(path) as fh:
+            data = json.load(fh)
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path}: not valid JSON ({e})") from e
+    fields = {f.name for f in dataclasses.fields(cls)}
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a JSON object of {cls.__name__} keys")
+    unknown = sorted(set(data) - fields)
+    if unknown:
+        raise ValueError(f"{path}: unknown {what} {unknown}; expected some of {sorted(fields)}")
+    return data

@@ -1,0 +1,130 @@
+"""What a training run is made of, from its ``Config``: the model, the loss, the
+optimizer, the window plan and the first carry; and the checks on its dataset.
+
+``jtus.train`` runs these; the experiments and tests call the same functions, so a
+sweep trains exactly what ``python -m jtus.train`` would.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from typing import NamedTuple, Optional
+
+import jax
+import optax
+
+from jtus import losses, models, rollout
+from jtus.config import Config
+
+
+class Plan(NamedTuple):
+    """How one training sequence becomes optimizer steps."""
+    window: int                 # frames per optimizer step (BPTT: seq_len; TBPTT: k2)
+    loss_frames: int            # the loss is averaged over the last this many of a window
+    keep_at: Optional[int]      # TBPTT with k1 < k2: the carry after k1 frames starts the next
+    windows: list               # rollout.Window per optimizer step of one sequence
+
+
+def model_for(config: Config) -> models.Model:
+    return models.build(config.model, config.factor, **dict(config.model_overrides))
+
+
+def loss_for(config: Config):
+    """``losses.make(config.loss, ...)``, plus NSRR's perceptual term when the config
+    names VGG-16 weights."""
+    return losses.make(config.loss, config.factor, theta=config.theta,
+                       perceptual_weights=config.perceptual_weights or None,
+                       perceptual_weight=config.perceptual_weight)
+
+
+def accept_for(config: Config):
+    """The model's training-crop acceptance hook (the MLP upscaler keeps crops with a
+    probability rising with their gradient magnitude, Spencer); None: take every crop."""
+    return models.spec(config.model).accept
+
+
+def plan(config: Config) -> Plan:
+    if config.mode == "bptt":
+        return Plan(config.seq_len, config.loss_frames, None,
+                    [rollout.Window(0, config.seq_len)])
+    keep = config.k1 if config.k1 < config.k2 else None
+    return Plan(config.k2, config.k1, keep,
+                rollout.tbptt_windows(config.seq_len, config.k1, config.k2))
+
+
+def optimizer_for(config: Config):
+    """Adam at ``lr``, or warm-up then cosine decay to ``lr * lr_end`` over the run's
+    optimizer steps; after global-norm clipping when ``clip_norm`` > 0."""
+    lr = config.lr
+    if config.schedule == "cosine":
+        total = config.epochs * config.steps_per_epoch * len(plan(config).windows)
+        lr = optax.warmup_cosine_decay_schedule(
+            0.0, config.lr, min(config.warmup_steps, max(total - 1, 0)), max(total, 1),
+            config.lr * config.lr_end)
+    adam = optax.adam(lr)
+    return optax.chain(optax.clip_by_global_norm(config.clip_norm), adam) if config.clip_norm \
+        else adam
+
+
+def start_carry(model, frames, targets) -> rollout.Carry:
+    """The carry at the start of time-major training sequences."""
+    return rollout.start(rollout.first_state(model, frames), targets[0])
+
+
+def ensure_dataset(config: Config, progress=True):
+    """``config.dataset``, generated from ``config.data_preset`` first if missing."""
+    if not os.path.exists(config.dataset):
+        from jtus.data import dataset
+        print(f"{config.dataset} is missing: generating the {config.data_preset!r} preset "
+              f"(once)", file=sys.stderr)
+        dataset.generate(config.data_preset, config.dataset, progress=progress)
+    return config.dataset
+
+
+def check_data(config: Config):
+    """Refuse, before anything is written, a dataset this config cannot train on: the
+    factor, the crop against the frame size, the window against the videos' lengths,
+    empty train or validation splits."""
+    from jtus.data.dataset import Dataset
+
+    with Dataset(config.dataset) as ds:
+        if config.factor not in ds.factors:
+            raise ValueError(f"factor: {config.dataset} holds factors {ds.factors}, got "
+                             f"{config.factor}")
+        if config.crop > min(ds.size):
+            raise ValueError(f"crop: {config.crop} exceeds the frame size "
+                             f"{ds.size[0]}x{ds.size[1]} of {config.dataset}")
+        window = plan(config).window
+        for split, need in (("train", config.seq_len), ("val", window)):
+            names = ds.videos(split)
+            if not names:
+                raise ValueError(f"dataset: no videos in split {split!r} of {config.dataset}")
+            shortest = min(ds.file[f"{split}/{n}/target"].shape[0] for n in names)
+            if need > shortest:
+                raise ValueError(f"seq_len: {need} frames exceed the shortest {split} video "
+                                 f"of {config.dataset} ({shortest} frames)")
+
+
+def export_params(workdir, out_base):
+    """Write a run's parameters alone (no optimizer state) with its config and
+    per-epoch log: ``out_base.msgpack``, ``.json``, ``-training.csv`` (the form
+    ``jtus/weights/`` ships and ``models.load`` reads)."""
+    from jtus import checkpoint, config as run_config
+
+    params, config = models.load_params(os.path.join(workdir, checkpoint.CHECKPOINT))
+    return checkpoint.write_params(out_base, params, run_config.to_json(config),
+                                   os.path.join(workdir, "metrics.csv"))
+
+
+def init_params(config: Config):
+    """The starting parameters: from ``init_from`` (a checkpoint of the same model and
+    factor) or freshly initialized from ``seed``."""
+    if config.init_from:
+        params, init_cfg = models.load_params(config.init_from)
+        if (init_cfg.model, init_cfg.factor) != (config.model, config.factor):
+            raise ValueError(f"init_from: {config.init_from} holds {init_cfg.model} at "
+                             f"{init_cfg.factor}x, this run trains {config.model} at "
+                             f"{config.factor}x")
+        return params
+    return model_for(config).init(jax.random.PRNGKey(config.seed))
