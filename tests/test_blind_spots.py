@@ -1,0 +1,138 @@
+"""Checks for implementation bugs that the rest of the suite let through (issue 18's
+audit): each test names the deliberate bug it catches, and was run against it."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from jtus import losses, rollout, sampling, train
+from jtus.models import dlctus, nsrr
+from tests import seqdata
+
+
+def _first(tree):
+    return jax.tree_util.tree_map(lambda x: x[0], tree)
+
+
+def _at(tree, t):
+    return jax.tree_util.tree_map(lambda x: x[t], tree)
+
+
+def test_dlctus_reset_history_is_the_jitter_aligned_input():
+    """A reset frame's history is its own jitter-aligned bilinear input with
+    accumulation 1 (thesis sec. 4.2: the first frame), whatever the state held.
+    Catches: a reset writing zeros, or keeping the reprojected history (the comparison
+    with a "fresh" rollout in test_rollout cannot: both sides run the reset code)."""
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=2, B=2, reset_at=(1, 0)))
+    config = dlctus.Config(factor=4)
+    frame = _at(frames, 1)
+    garbage = dlctus.State(jnp.asarray(np.random.default_rng(1).uniform(size=(2, 32, 32, 4)),
+                                       jnp.float32))
+    _, _, hist = dlctus.prepare(garbage, frame, config)
+    ones = jnp.ones(frame.color.shape[:-1] + (1,))
+    want = sampling.jitter_aligned_upsample(jnp.concatenate([frame.color, ones], -1),
+                                            frame.jitter, 4, "bilinear")
+    np.testing.assert_allclose(hist[0], want[0], rtol=0, atol=1e-6)  # reset element
+    assert float(jnp.abs(hist[1] - want[1]).max()) > 0.05  # control: element 1 reprojects
+
+
+def test_nsrr_reset_forgets_the_previous_features():
+    """NSRR on a reset frame runs as if its previous-frame features were zero (its
+    state at a sequence start). Catches: the reset flag ignored (garbage features
+    reweighted into the output)."""
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=2, B=2, reset_at=(1, 0)))
+    model = nsrr.make(nsrr.Config(factor=4, fast=True))
+    params = model.init(jax.random.PRNGKey(0))
+    frame = _at(frames, 1)
+    zero = model.init_state(frame)
+    garbage = nsrr.State(jnp.asarray(np.random.default_rng(2).uniform(
+        size=zero.previous.shape), jnp.float32))
+    out_zero, _ = model.step(params, zero, frame)
+    out_garbage, _ = model.step(params, garbage, frame)
+    np.testing.assert_allclose(out_garbage[0], out_zero[0], rtol=0, atol=1e-6)
+    assert float(jnp.abs(out_garbage[1] - out_zero[1]).max()) > 1e-4  # control
+
+
+def test_real_train_step_hands_on_the_carry_after_k1_frames():
+    """TBPTT in the training step ``train`` runs (``make_train_step`` with
+    ``keep_at``): the carry it returns, which starts the next window, is the state
+    after k1 frames of this window, computed with the parameters before the update.
+    Catches: the step handing on the carry after the whole window (``last`` for
+    ``kept``), which the rollout-level chaining test does not run."""
+    frames, targets = seqdata.to_jax(seqdata.sequence(T=4, B=2))
+    model = dlctus.make(dlctus.Config(factor=4))
+    params = model.init(jax.random.PRNGKey(0))
+    opt = optax.adam(1e-2)
+    step = train.make_train_step(model, losses.make("l1", 4), opt, loss_frames=2, keep_at=2)
+    carry = rollout.start(model.init_state(_first(frames)), targets[0])
+    ts = train.create_train_state(jax.tree_util.tree_map(jnp.copy, params), opt)
+    _, nxt, _ = step(ts, carry, frames, targets)
+    head = jax.tree_util.tree_map(lambda x: x[:2], frames)
+    outs, state2 = rollout.outputs(model.step, params, model.init_state(_first(frames)), head)
+    np.testing.assert_allclose(nxt.state.history, state2.history, rtol=0, atol=1e-5)
+    np.testing.assert_allclose(nxt.prev_out, outs[1], rtol=0, atol=1e-5)
+    np.testing.assert_array_equal(nxt.prev_target, targets[1])
+    assert bool(nxt.has_prev)
+    _, state4 = rollout.outputs(model.step, params, model.init_state(_first(frames)), frames)
+    assert float(jnp.abs(state4.history - state2.history).max()) > 1e-3  # control
+
+
+def _tus_golden(filter_, beta_name, f=2, jitter=(0.3, 0.7), alpha=0.6, sigma=0.47):
+    """TUS's blend (thesis eq. 39) against eq. 38 and 40-42 written out per output
+    pixel in numpy: a random LR frame, zero motion, a constant history of 0.5, no
+    rectification, so ``out = αβ s̄ + (1 - αβ) 0.5``. LR sample ``j`` sits at HR
+    position ``f (j + jitter)`` (docs/conventions.md). N(p), the thesis's "fixed
+    neighbourhood around p", is the 3x3 LR samples around p's nearest sample (jtus's
+    choice). Interior pixels only (no edge clamping)."""
+    from jtus.frame import Frame
+    from jtus.models import tus
+
+    rng = np.random.default_rng(3)
+    h = w = 6
+    color = rng.uniform(size=(1, h, w, 3)).astype(np.float32)
+    frame = Frame(jnp.asarray(color), jnp.full((1, h, w, 1), 0.5, jnp.float32),
+                  jnp.zeros((1, h, w, 2), jnp.float32), jnp.asarray([jitter], jnp.float32),
+                  jnp.zeros((1,), bool))
+    config = tus.Config(factor=f, filter=filter_, beta=beta_name, rectify="none",
+                        alpha=alpha, sigma=sigma)
+    state = tus.State(jnp.concatenate([jnp.full((1, h * f, w * f, 3), 0.5),
+                                       jnp.full((1, h * f, w * f, 1), 5.0)], -1))
+    out = np.asarray(tus.make(config).step({}, state, frame)[0])[0]
+    jx, jy = jitter
+    checked = 0
+    for y in range(f, (h - 1) * f):
+        for x in range(f, (w - 1) * f):
+            px, py = x + 0.5, y + 0.5  # HR pixel centre
+            nx, ny = round(px / f - jx), round(py / f - jy)  # nearest sample
+            if not (1 <= nx <= w - 2 and 1 <= ny <= h - 2):
+                continue
+            num, den, bmax, box = np.zeros(3), 0.0, 0.0, 0.0
+            for b in (ny - 1, ny, ny + 1):
+                for a in (nx - 1, nx, nx + 1):
+                    dx, dy = px - f * (a + jx), py - f * (b + jy)  # HR pixels
+                    if filter_ == "tent":  # eq. 40, one LR pixel (f HR pixels) wide
+                        wgt = max(0.0, 1 - abs(dx) / f) * max(0.0, 1 - abs(dy) / f)
+                    else:  # eq. 41
+                        wgt = np.exp(-(dx * dx + dy * dy) / (2 * sigma ** 2))
+                    num += wgt * color[0, b, a]
+                    den += wgt
+                    bmax = max(bmax, wgt)  # eq. 42
+                    # Yang et al.'s box: 1 when the sample lies in this output pixel
+                    box = max(box, float(x <= f * (a + jx) < x + 1 and y <= f * (b + jy) < y + 1))
+            s = num / den  # eq. 38
+            beta = {"max": bmax, "box": box}[beta_name]
+            want = alpha * beta * s + (1 - alpha * beta) * 0.5  # eq. 39
+            np.testing.assert_allclose(out[y, x], want, rtol=0, atol=2e-6, err_msg=(y, x))
+            checked += 1
+    return checked
+
+
+def test_tus_gaussian_filter_and_max_beta_follow_eq_38_41_42():
+    """Catches: β forced to 1, or the mean weight instead of the largest."""
+    assert _tus_golden("gaussian", "max") > 50
+
+
+def test_tus_tent_filter_and_box_beta_follow_eq_38_40():
+    """Catches: β forced to 1, or the box β on the wrong pixel."""
+    assert _tus_golden("tent", "box", f=4, jitter=(0.6, 0.1)) > 50
