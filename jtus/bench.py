@@ -101,6 +101,15 @@ def _inputs(h, w, b=1, seed=0):
                  jnp.asarray(r.uniform(size=(b, 2)), jnp.float32))
 
 
+def is_dlctus(name):
+    """A registry name built by DLCTUS's module: it has the network-only timing, the
+    dtype and formulation variants and the PyTorch reference."""
+    from jtus import models
+    from jtus.models import dlctus
+
+    return models.spec(name).make is dlctus.make
+
+
 def infer_workload(name, factor, size, dtype="float32", **overrides):
     """One jitted inference step of ``name`` at HR ``size``, its state donated.
     Returns ``(run, hlo, model, params, state, frame)``: ``run()`` steps once and
@@ -144,7 +153,7 @@ def bench_infer(name, factor, size, repeats, dtype="float32", against=None, **ov
            "mbytes": c.bytes / 1e6}
     if against is not None:
         rec.update(torch_ms=other * 1e3, torch_over_jtus=other / seconds)
-    if name == "dlctus":
+    if is_dlctus(name):
         net_in, _, _ = dlctus.prepare(state[0], frame, model.config)
         net = jax.jit(lambda p, x: dlctus.network(p, x, model.config))
         ns = timeit(lambda: net(params, net_in).block_until_ready(), repeats)
@@ -308,11 +317,11 @@ def run(args):
             for size in args.sizes:
                 for f in args.factors:
                     variants = ([(dt, fm) for dt in args.dtypes for fm in args.formulations]
-                                if name == "dlctus" else [("float32", None)])
+                                if is_dlctus(name) else [("float32", None)])
                     for dt, fm in variants:
                         over = {"formulation": fm} if fm else {}
                         against = None
-                        if (name == "dlctus" and dt == "float32" and fm == args.formulations[0]
+                        if (is_dlctus(name) and dt == "float32" and fm == args.formulations[0]
                                 and args.torch):
                             against = torch_infer(f, SIZES[size])
                         rec = bench_infer(name, f, SIZES[size], args.repeats, dt, against=against,

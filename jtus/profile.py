@@ -194,7 +194,8 @@ def main(argv=None):
                     f"{args.batch}, {args.seq} frames, loss on the last {args.loss_frames}, "
                     f"{args.warp} warp, Adam)")
     else:
-        over = {"warp": args.warp} if args.model == "dlctus" else {}
+        over = {"warp": args.warp} if hasattr(models.spec(args.model).config(args.factor), "warp") \
+            else {}
         run, hlo, *_ = bench.infer_workload(args.model, args.factor, bench.SIZES[args.size],
                                             **over)
         workload = (f"one {args.model.upper()} {args.factor}x inference step at {args.size}"
