@@ -10,6 +10,8 @@ intermediate network tensor, the traffic of an unfused implementation.
 
 from __future__ import annotations
 
+import sys
+
 from jtus import models
 from jtus.models.base import Cost
 
@@ -54,7 +56,19 @@ def main(argv=None):
     p.add_argument("--height", type=int, default=1080)
     p.add_argument("--width", type=int, default=1920)
     args = p.parse_args(argv)
-    print(table(args.models, args.factors, args.height, args.width))
+    try:
+        for f in args.factors:
+            if f not in (2, 4):
+                raise ValueError(f"--factors: expected 2 or 4, got {f}")
+        for name in ("height", "width"):
+            v = getattr(args, name)
+            if v < 4 or v % 4 or any(v % f for f in args.factors):
+                raise ValueError(f"--{name}: expected a positive multiple of 4 and of each "
+                                 f"factor {args.factors}, got {v}")
+        print(table(args.models, args.factors, args.height, args.width))
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     return 0
 
 

@@ -188,9 +188,13 @@ def run(specs, dataset, factors=None, out=None, split="test", max_videos=None, v
     of ``factors`` (default: every factor in the data). Returns ``{factor: {label:
     {"psnr", "ssim", "temporal"}}}``; with ``out``, writes ``results.md``,
     ``results.json``, ``per_frame_x{f}.png`` and (``crops``) ``crops_x{f}.png``."""
+    if max_videos is not None and max_videos < 1:
+        raise ValueError(f"max_videos: expected a positive number of videos, got {max_videos}")
     with Dataset(dataset) as ds:
         factors = list(factors or ds.factors)
     if out:
+        from jtus.files import check_out_folder
+        check_out_folder(out)
         os.makedirs(out, exist_ok=True)
     summary, legends, names = {}, {}, []
     for f in factors:

@@ -17,7 +17,6 @@ frame ``[1,H,W,3]`` and the next history (``docs/conventions.md``).
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 
 
@@ -97,10 +96,8 @@ def main(argv=None):
     args = p.parse_args(argv)
     sigterm_as_exit()
     try:
-        if os.path.isdir(args.out):
-            raise ValueError(f"--out: {args.out} is a folder; expected a file path")
-        if os.path.exists(args.out) and not args.force:
-            raise ValueError(f"--out: {args.out} exists; pass --force to replace it")
+        from jtus.files import check_out_file
+        check_out_file(args.out, args.force, kind="a file")
         model, params = load_dlctus(args.model, args.factor)
         if args.format == "torch":
             to_torch(params, model.config, args.out)

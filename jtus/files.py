@@ -51,3 +51,35 @@ def read_json_fields(path, cls, what):
     if unknown:
         raise ValueError(f"{path}: unknown {what} {unknown}; expected some of {sorted(fields)}")
     return data
+
+
+def _writable_parent(path, field):
+    parent = os.path.dirname(os.path.abspath(path))
+    while not os.path.exists(parent):
+        parent = os.path.dirname(parent)
+    if not os.path.isdir(parent):
+        raise ValueError(f"{field}: {parent} is a file, so {path} cannot be created")
+    if not os.access(parent, os.W_OK):
+        raise ValueError(f"{field}: {parent} is not writable")
+
+
+def check_out_file(path, force=True, field="--out", kind="file"):
+    """Refuse, before any work starts, an output path that cannot take a file: an
+    existing folder, an existing file without ``force``, a parent that is a file or
+    is not writable. ``ValueError`` naming ``field``."""
+    path = os.fspath(path)
+    if os.path.isdir(path):
+        raise ValueError(f"{field}: {path} is a folder; expected {kind} path")
+    if os.path.exists(path) and not force:
+        raise ValueError(f"{field}: {path} exists; pass --force to replace it")
+    _writable_parent(path, field)
+
+
+def check_out_folder(path, field="--out"):
+    """Refuse, before any work starts, an output folder that is a file or cannot be
+    created."""
+    path = os.fspath(path)
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise ValueError(f"{field}: {path} is a file; expected a folder")
+    if not os.path.exists(path):
+        _writable_parent(path, field)

@@ -36,8 +36,10 @@ def _load_input(args):
     from jtus.data.dataset import Dataset
 
     with Dataset(args.input) as ds:
-        video = args.video or ds.videos(args.split)[0]
-        frames, _ = ds.video(args.split, video, args.factor)
+        names = ds.videos(args.split)
+        if not args.video and not names:
+            raise ValueError(f"--split: no videos in split {args.split!r} of {args.input}")
+        frames, _ = ds.video(args.split, args.video or names[0], args.factor)
     return frames
 
 
@@ -88,6 +90,8 @@ def main(argv=None):
     from jtus.cli import sigterm_as_exit
     sigterm_as_exit()
     try:
+        from jtus.files import check_out_folder
+        check_out_folder(args.out)
         entry = models.load(args.model, args.factor)
         if entry is None:
             raise ValueError(f"model {args.model!r} is not available at {args.factor}x")

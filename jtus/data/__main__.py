@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 import sys
 
 from jtus.data import dataset, exr
+from jtus.files import check_out_file, check_out_folder
 
 
 def _parser():
@@ -62,10 +62,7 @@ def _import(args):
     if not re.fullmatch(r"[A-Za-z0-9_.-]+", args.name):
         raise ValueError(f"--name: expected letters, digits, '_', '-' or '.', got "
                          f"{args.name!r}")
-    if os.path.isdir(args.out):
-        raise ValueError(f"--out: {args.out} is a folder; expected an .h5 file path")
-    if os.path.exists(args.out) and not args.force:
-        raise ValueError(f"--out: {args.out} exists; pass --force to replace it")
+    check_out_file(args.out, args.force, kind="an .h5 file")
     spec = exr.ImportSpec.from_json(args.sidecar) if args.sidecar else exr.ImportSpec()
     over = {"color": tuple(args.color.split(",")) if args.color else None,
             "depth": args.depth, "motion": tuple(args.motion.split(",")) if args.motion else None,
@@ -78,14 +75,22 @@ def _import(args):
 
 
 def _export(args):
+    import re
+
+    check_out_folder(args.out)
+    m = re.fullmatch(r"target|color@(\d+)", args.what)
+    if not m:
+        raise ValueError(f"--what: expected target or color@FACTOR, got {args.what!r}")
     with dataset.Dataset(args.dataset) as ds:
-        g = ds.file[f"{args.split}/{args.video}"]
+        g = ds.group(args.split, args.video)
         if args.what == "target":
             frames = g["target"][:]
-        elif args.what.startswith("color@"):
-            frames = g[f"x{int(args.what.split('@')[1])}/color"][:]
         else:
-            raise SystemExit(f"--what: expected target or color@FACTOR, got {args.what!r}")
+            factor = int(m.group(1))
+            if factor not in ds.factors:
+                raise ValueError(f"--what: {args.dataset} holds factors {ds.factors}, got "
+                                 f"{args.what!r}")
+            frames = g[f"x{factor}/color"][:]
     paths = exr.write_sequence(frames.astype("float32"), args.out, args.format)
     print(f"wrote {len(paths)} frames to {args.out}")
 
@@ -107,6 +112,7 @@ def main(argv=None):
     sigterm_as_exit()
     try:
         if args.cmd == "generate":
+            check_out_file(args.out, kind="an .h5 file")
             dataset.generate(args.preset, args.out, progress=not args.quiet)
             print(f"wrote {args.out}")
         elif args.cmd == "import-exr":

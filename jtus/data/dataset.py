@@ -229,10 +229,23 @@ class Dataset:
         if factor not in self.factors:
             raise ValueError(f"factor: the dataset holds {self.factors}, got {factor}")
 
+    def group(self, split, name):
+        """The HDF5 group of one video; ``ValueError`` naming what exists when the split
+        or the video does not."""
+        if split not in self.file:
+            raise ValueError(f"split: {self.path} has no split {split!r}; it has "
+                             f"{sorted(self.file.keys())}")
+        if name not in self.file[split]:
+            names = self.videos(split)
+            raise ValueError(f"video: no {name!r} in split {split!r} of {self.path}; it has "
+                             f"{len(names)} videos ({', '.join(names[:5])}"
+                             f"{', ...' if len(names) > 5 else ''})")
+        return self.file[f"{split}/{name}"]
+
     def video(self, split, name, factor):
         """A whole video: ``(Frame [T,1,...], targets [T,1,H,W,3])`` float32, reset at t=0."""
         self._check_factor(factor)
-        g = self.file[f"{split}/{name}"]
+        g = self.group(split, name)
         x = g[f"x{factor}"]
         reset = g["reset"][:].copy()
         reset[0] = True

@@ -94,12 +94,11 @@ def _scenes_from(args):
 
 
 def _check_out(path, force, ext):
-    if os.path.isdir(path):
-        raise ValueError(f"--out: {path} is a folder; expected a {ext} file path")
+    from jtus.files import check_out_file
+
+    check_out_file(path, force, kind=f"a {ext} file")
     if not path.endswith(ext):
         raise ValueError(f"--out: expected a path ending in {ext}, got {path}")
-    if os.path.exists(path) and not force:
-        raise ValueError(f"--out: {path} exists; pass --force to replace it")
 
 
 def _render(args):
