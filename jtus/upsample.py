@@ -84,14 +84,15 @@ def main(argv=None):
     p.add_argument("--factor", type=int, required=True)
     p.add_argument("--model", default="shipped")
     p.add_argument("--out", required=True)
+    p.add_argument("--force", action="store_true",
+                   help="replace the frames of an earlier run in --out")
     p.add_argument("--format", choices=exr.IMAGE_FORMATS, default="png")
     p.add_argument("--mp4", help="also write input | output side by side to this MP4")
     args = p.parse_args(argv)
     from jtus.cli import sigterm_as_exit
     sigterm_as_exit()
     try:
-        from jtus.files import check_out_folder
-        check_out_folder(args.out)
+        exr.check_sequence_folder(args.out, args.force)
         entry = models.load(args.model, args.factor)
         if entry is None:
             raise ValueError(f"model {args.model!r} is not available at {args.factor}x")

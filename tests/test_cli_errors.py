@@ -70,3 +70,20 @@ def test_names_that_do_not_exist(tiny_data, tmp_path, capsys):
                                        (["--width", "1918"], "--width")])
 def test_cost_refuses_bad_sizes_and_factors(capsys, argv, flag):
     _refused(capsys, cost.main, argv, flag)
+
+
+def test_upsample_and_export_refuse_a_folder_with_old_frames(tiny_data, tmp_path, capsys):
+    """Defect 13: new frames written beside stale ones would read as one sequence."""
+    out = tmp_path / "frames"
+    base = ["--input", tiny_data, "--factor", "4", "--model", "jau", "--out", str(out)]
+    assert upsample.main(base) == 0
+    n = len(os.listdir(out))
+    (out / "frame9999.png").write_bytes(b"stale")
+    _refused(capsys, upsample.main, base, "--out", "earlier sequence", "--force")
+    assert (out / "frame9999.png").read_bytes() == b"stale"
+    assert upsample.main(base + ["--force"]) == 0
+    assert len(os.listdir(out)) == n  # the stale frame is gone
+    ex = ["export", "--dataset", tiny_data, "--split", "test", "--video", "objects_00",
+          "--out", str(out)]
+    _refused(capsys, data_cli.main, ex, "--out", "earlier sequence")
+    assert data_cli.main(ex + ["--force"]) == 0

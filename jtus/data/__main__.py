@@ -15,7 +15,7 @@ import dataclasses
 import sys
 
 from jtus.data import dataset, exr
-from jtus.files import check_out_file, check_out_folder
+from jtus.files import check_out_file
 
 
 def _parser():
@@ -51,6 +51,8 @@ def _parser():
     e.add_argument("--what", default="target", help="target, or color@FACTOR")
     e.add_argument("--format", choices=exr.IMAGE_FORMATS, default="png")
     e.add_argument("--out", required=True)
+    e.add_argument("--force", action="store_true",
+                   help="replace the frames of an earlier export in --out")
     n = sub.add_parser("info", help="summarize a dataset")
     n.add_argument("--dataset", required=True)
     return p
@@ -77,7 +79,7 @@ def _import(args):
 def _export(args):
     import re
 
-    check_out_folder(args.out)
+    exr.check_sequence_folder(args.out, args.force)
     m = re.fullmatch(r"target|color@(\d+)", args.what)
     if not m:
         raise ValueError(f"--what: expected target or color@FACTOR, got {args.what!r}")

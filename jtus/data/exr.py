@@ -268,9 +268,33 @@ def linear_to_srgb(x):
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
 
 
+def sequence_files(folder, prefix="frame"):
+    """The frames a ``write_sequence`` into ``folder`` wrote (any format)."""
+    import re
+
+    if not os.path.isdir(folder):
+        return []
+    pat = re.compile(re.escape(prefix) + r"\d{4,}\.(" + "|".join(IMAGE_FORMATS) + ")")
+    return sorted(f for f in os.listdir(folder) if pat.fullmatch(f))
+
+
+def check_sequence_folder(folder, force=False, prefix="frame", field="--out"):
+    """Refuse, before any work, a folder holding the frames of an earlier sequence
+    (new frames beside stale ones would read as one sequence) unless ``force``."""
+    from jtus.files import check_out_folder
+
+    check_out_folder(folder, field)
+    old = sequence_files(folder, prefix)
+    if old and not force:
+        raise ValueError(f"{field}: {folder} holds {len(old)} frames of an earlier sequence "
+                         f"({old[0]} ...); pass --force to replace them")
+
+
 def write_sequence(frames, folder, fmt="exr", prefix="frame", srgb=True):
-    """Write ``[T,H,W,3]`` linear RGB frames as ``folder/{prefix}{t:04d}.{fmt}``. PNGs
-    are 8-bit, sRGB-encoded unless ``srgb=False``. Returns the paths."""
+    """Write ``[T,H,W,3]`` linear RGB frames as ``folder/{prefix}{t:04d}.{fmt}``, after
+    removing the frames of an earlier sequence there (``check_sequence_folder`` refuses
+    them first unless forced). PNGs are 8-bit, sRGB-encoded unless ``srgb=False``.
+    Returns the paths."""
     from PIL import Image
 
     if fmt not in IMAGE_FORMATS:
@@ -279,6 +303,8 @@ def write_sequence(frames, folder, fmt="exr", prefix="frame", srgb=True):
     if frames.ndim != 4 or frames.shape[-1] != 3:
         raise ValueError(f"frames: expected [T,H,W,3], got shape {frames.shape}")
     os.makedirs(folder, exist_ok=True)
+    for old in sequence_files(folder, prefix):
+        os.remove(os.path.join(folder, old))
     paths = []
     for t, img in enumerate(frames):
         path = os.path.join(folder, f"{prefix}{t:04d}.{fmt}")

@@ -118,6 +118,10 @@ def load(spec_text, factor) -> Entry | None:
         if not os.path.exists(path):
             raise FileNotFoundError(f"{label}: {path} does not exist")
         if path.endswith(".pt"):
+            # the thesis's network has the same shapes at every factor: nothing in the
+            # file says which it was trained for
+            print(f"note: {label}: a .pt checkpoint carries no factor; running it as a "
+                  f"{factor}x model", file=sys.stderr)
             config = dlctus.Config(factor=factor)
             return Entry(label, dlctus.make(config), dlctus.load_torch_checkpoint(path, config))
         params, config = load_params(path)
