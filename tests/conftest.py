@@ -12,8 +12,12 @@ import pytest
 # a video) in fresh jit objects, and a cache hit skips XLA's compile (the resume test
 # took 51 s without it and 29 s with it, 2 cores). Keys are the programs themselves,
 # and the folder is new for each session and removed after it.
-_CACHE = tempfile.mkdtemp(prefix="jtus-test-jax-cache-")
-atexit.register(shutil.rmtree, _CACHE, ignore_errors=True)
+# xdist workers (``-n 2``) inherit the controller's folder through JTUS_TEST_JAX_CACHE
+if "JTUS_TEST_JAX_CACHE" in os.environ:
+    _CACHE = os.environ["JTUS_TEST_JAX_CACHE"]
+else:
+    _CACHE = os.environ["JTUS_TEST_JAX_CACHE"] = tempfile.mkdtemp(prefix="jtus-test-jax-cache-")
+    atexit.register(shutil.rmtree, _CACHE, ignore_errors=True)
 for _name, _value in (("jax_compilation_cache_dir", _CACHE),
                       ("jax_persistent_cache_min_compile_time_secs", 0),
                       ("jax_persistent_cache_min_entry_size_bytes", 0)):

@@ -86,9 +86,10 @@ def test_dense_bilinear_equals_sampling(x64, rng, factor):
     np.testing.assert_allclose(sampling.jitter_aligned_upsample(x, jit, factor),
                                ref_jau(x, jit), rtol=0, atol=1e-14)
     cot = jnp.asarray(rng.normal(size=(b, h * factor, w * factor, 2)))
-    got = jax.grad(lambda x, j: jnp.sum(sampling.jitter_aligned_upsample(x, j, factor) * cot),
-                   argnums=(0, 1))(x, jit)
-    want = jax.grad(lambda x, j: jnp.sum(ref_jau(x, j) * cot), argnums=(0, 1))(x, jit)
+    # jitted: op-by-op float64 gradients of the warp took most of this test's time
+    got = jax.jit(jax.grad(lambda x, j: jnp.sum(sampling.jitter_aligned_upsample(x, j, factor)
+                                                * cot), argnums=(0, 1)))(x, jit)
+    want = jax.jit(jax.grad(lambda x, j: jnp.sum(ref_jau(x, j) * cot), argnums=(0, 1)))(x, jit)
     for g, r in zip(got, want):
         np.testing.assert_allclose(g, r, rtol=0, atol=1e-12)
 
