@@ -311,3 +311,15 @@ def test_import_exr_refuses_bad_names_outputs_and_sidecars(tmp_path, capsys):
         assert msg in err, (args, err)
     assert out.read_bytes() == before and not (tmp_path / "y.h5").exists()
     assert data_cli.main(base + ["--sidecar", str(good), "--out", str(out), "--force"]) == 0
+
+
+def test_videos_record_their_depth_planes(tiny):
+    """Each generated video records the near/far planes its device depth was made
+    with (the scene's, by default conventions.NEAR/FAR)."""
+    from jtus.data.conventions import FAR, NEAR
+
+    with dataset.Dataset(tiny) as ds:
+        for split in dataset.SPLITS:
+            for name in ds.videos(split):
+                g = ds.group(split, name)
+                assert (float(g.attrs["near"]), float(g.attrs["far"])) == (NEAR, FAR), name
