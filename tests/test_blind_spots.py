@@ -136,3 +136,49 @@ def test_tus_gaussian_filter_and_max_beta_follow_eq_38_41_42():
 def test_tus_tent_filter_and_box_beta_follow_eq_38_40():
     """Catches: β forced to 1, or the box β on the wrong pixel."""
     assert _tus_golden("tent", "box", f=4, jitter=(0.6, 0.1)) > 50
+
+
+def _shifted_previous_errors(f=4, shift=1, seed=5):
+    """Current and previous outputs/targets and a frame whose LR motion is ``shift``
+    LR pixels to the right everywhere: the previous value under HR pixel (y, x) is at
+    (y, x + f*shift), inside the image only for x + f*shift < W (docs/conventions.md)."""
+    from jtus.frame import Frame
+
+    rng = np.random.default_rng(seed)
+    B, H, W = 2, 16, 20
+    out, target, prev_out, prev_target = (rng.uniform(size=(B, H, W, 3)) for _ in range(4))
+    h, w = H // f, W // f
+    motion = np.zeros((B, h, w, 2))
+    motion[..., 0] = shift
+    frame = Frame(jnp.zeros((B, h, w, 3)), jnp.full((B, h, w, 1), 0.5), jnp.asarray(motion),
+                  jnp.full((B, 2), 0.5), None)
+    x = out - target
+    y = np.zeros_like(x)
+    s = f * shift
+    y[:, :, :W - s] = (prev_out - prev_target)[:, :, s:]  # f_prev, eq. 48
+    args = tuple(jnp.asarray(a) for a in (out, target, prev_out, prev_target))
+    return args, frame, x, y
+
+
+def test_st_and_st_linear_follow_thesis_eq_48_to_55(x64):
+    """L_st (eq. 51-52, and equal to eq. 48-49 divided by 1 + θ̂ with θ = θ̂/(1+θ̂))
+    and L_st-linear (eq. 54-55), each the mean over pixels and channels of its
+    per-element form, written here from the thesis, not from losses.py. Catches: a
+    sign or factor of θ, the temporal term read at the wrong pixel or without the
+    out-of-image mask, y not zeroed without a previous frame."""
+    args, frame, x, y = _shifted_previous_errors()
+    for theta in (0.0, 0.3, 0.5, 0.9):
+        st = np.mean(x * x + y * y - 2 * theta * x * y)  # eq. 52
+        th_hat = theta / (1 - theta)  # eq. 50's substitution, inverted
+        st_hat = np.mean(x * x + y * y + th_hat * (x - y) ** 2)  # eq. 49
+        np.testing.assert_allclose(st, st_hat / (1 + th_hat), rtol=1e-12)
+        lin = np.mean(np.abs(x) + np.abs(y) + theta * (np.abs(x - y) - np.abs(x) - np.abs(y)))
+        got_st = float(losses.make("st", 4, theta=theta)(*args, jnp.asarray(True), frame))
+        got_lin = float(losses.make("st-linear", 4, theta=theta)(*args, jnp.asarray(True), frame))
+        np.testing.assert_allclose(got_st, st, rtol=1e-12)
+        np.testing.assert_allclose(got_lin, lin, rtol=1e-12)
+    # no previous frame: y = 0, both reduce to the current error alone
+    got = float(losses.make("st-linear", 4, theta=0.5)(*args, jnp.asarray(False), frame))
+    np.testing.assert_allclose(got, np.mean(np.abs(x)), rtol=1e-12)
+    got = float(losses.make("st", 4, theta=0.5)(*args, jnp.asarray(False), frame))
+    np.testing.assert_allclose(got, np.mean(x * x), rtol=1e-12)
