@@ -182,3 +182,39 @@ def test_st_and_st_linear_follow_thesis_eq_48_to_55(x64):
     np.testing.assert_allclose(got, np.mean(np.abs(x)), rtol=1e-12)
     got = float(losses.make("st", 4, theta=0.5)(*args, jnp.asarray(False), frame))
     np.testing.assert_allclose(got, np.mean(x * x), rtol=1e-12)
+
+
+def _dlctus_hist(config, frame, history):
+    return dlctus.prepare(dlctus.State(history), frame, config)[2]
+
+
+def test_dlctus_without_accumulation_reads_a_count_of_one():
+    """``accumulation=False`` (the thesis's ablation, Table 16): the reprojected
+    history's fourth channel is 1 everywhere, whatever the buffer held. Catches: the
+    option ignored."""
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=2, B=2))
+    frame = _at(frames, 1)
+    rng = np.random.default_rng(4)
+    history = jnp.asarray(rng.uniform(0.1, 0.9, size=(2, 32, 32, 4)), jnp.float32)
+    off = _dlctus_hist(dlctus.Config(factor=4, accumulation=False), frame, history)
+    on = _dlctus_hist(dlctus.Config(factor=4), frame, history)
+    # bicubic weights of a constant 1 sum to 1 within float32 rounding (measured 1.1e-6)
+    np.testing.assert_allclose(off[..., 3], 1.0, rtol=0, atol=2.5e-6)
+    np.testing.assert_allclose(off[..., :3], on[..., :3], rtol=0, atol=1e-6)
+    assert float(jnp.abs(on[..., 3] - 1.0).max()) > 0.1  # control: the buffer's count
+
+
+def test_dlctus_dilation_reprojects_with_the_dilated_motion():
+    """``dilation=True`` reads the history at the motion of the nearest depth in each
+    3x3 neighbourhood (``sampling.dilate_motion``, tested on its own): the model's read
+    equals the undilated model's fed the dilated motion. Catches: the option ignored,
+    or dilated motion computed and not used."""
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=2, B=2, max_motion=2.0))
+    frame = _at(frames, 1)
+    history = jnp.asarray(np.random.default_rng(6).uniform(size=(2, 32, 32, 4)), jnp.float32)
+    got = _dlctus_hist(dlctus.Config(factor=4, dilation=True), frame, history)
+    dilated = frame._replace(motion=sampling.dilate_motion(frame.motion, frame.depth))
+    want = _dlctus_hist(dlctus.Config(factor=4), dilated, history)
+    plain = _dlctus_hist(dlctus.Config(factor=4), frame, history)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-6)
+    assert float(jnp.abs(plain - want).max()) > 1e-3  # control: dilation changes the read
