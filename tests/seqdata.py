@@ -43,3 +43,28 @@ def sequence(T=10, B=2, h=8, w=8, factor=4, seed=0, dtype=np.float32, max_motion
 def to_jax(tree):
     import jax
     return jax.tree_util.tree_map(jnp.asarray, tree)
+
+
+def jau_reference(color, jitter, f):
+    """Jitter-aligned bilinear up-sampling of ``color [N,h,w,C]`` with ``jitter [N,2]``,
+    written out in numpy (float64) for the tests: HR pixel centre q = (x + 0.5) / f in
+    LR coordinates; LR sample i sits at i + jitter (docs/conventions.md); bilinear
+    between the two samples around q - jitter, indices clamped at the border. Jitter
+    0.5 is plain bilinear up-sampling (``F.interpolate``, align_corners False)."""
+    T, h, w, _ = color.shape
+    jitter = np.asarray(jitter, np.float64)
+
+    def axis(n, jit):
+        t = (np.arange(n * f) + 0.5) / f - jit  # sample i is at i + jit: t indexes samples
+        i0 = np.floor(t).astype(int)
+        return np.clip(i0, 0, n - 1), np.clip(i0 + 1, 0, n - 1), t - i0
+
+    out = np.zeros((T, h * f, w * f, color.shape[-1]))
+    for k in range(T):
+        y0, y1, ay = axis(h, jitter[k, 1])
+        x0, x1, ax = axis(w, jitter[k, 0])
+        c = np.asarray(color[k], np.float64)
+        top = c[y0][:, x0] * (1 - ax)[None, :, None] + c[y0][:, x1] * ax[None, :, None]
+        bot = c[y1][:, x0] * (1 - ax)[None, :, None] + c[y1][:, x1] * ax[None, :, None]
+        out[k] = top * (1 - ay)[:, None, None] + bot * ay[:, None, None]
+    return out

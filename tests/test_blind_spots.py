@@ -218,3 +218,42 @@ def test_dlctus_dilation_reprojects_with_the_dilated_motion():
     plain = _dlctus_hist(dlctus.Config(factor=4), frame, history)
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-6)
     assert float(jnp.abs(plain - want).max()) > 1e-3  # control: dilation changes the read
+
+
+def test_kpn_input_preparation():
+    """Herveau et al.'s network input at HR: the jitter-aligned bilinear colour,
+    linear depth and motion in HR pixels (both bilinearly up-sampled), then the
+    Catmull-Rom-reprojected history (colour and 5 hidden channels); a reset frame's
+    history is the fresh colour with zero hidden channels. Each part against numpy
+    (``seqdata.jau_reference``; jitter 0.5 is plain bilinear). Catches: channels out of
+    order, motion not scaled to HR pixels, depth not linearized, the reset ignored."""
+    from jtus.data.conventions import linearize_depth
+    from jtus.models import kpn
+
+    f = 4
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=2, B=2, reset_at=(1, 0), max_motion=0.0))
+    frame = _at(frames, 1)
+    config = kpn.Config(factor=f)
+    hist = jnp.asarray(np.random.default_rng(8).uniform(size=(2, 32, 32, 3 + kpn.HIDDEN)),
+                       jnp.float32)
+    x, _, _ = kpn.prepare(kpn.State(hist), frame, config)
+    x = np.asarray(x)
+    half = np.full((2, 2), 0.5)
+    jau = seqdata.jau_reference(np.asarray(frame.color), np.asarray(frame.jitter), f)
+    lin = linearize_depth(np.asarray(frame.depth, np.float64), config.near, config.far)
+    np.testing.assert_allclose(x[..., 0:3], jau, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(x[..., 3:4], seqdata.jau_reference(lin, half, f), rtol=0,
+                               atol=1e-6)
+    np.testing.assert_allclose(x[..., 4:6], f * seqdata.jau_reference(
+        np.asarray(frame.motion, np.float64), half, f), rtol=0, atol=1e-6)
+    # zero motion: the Catmull-Rom read at pixel centres is the history itself (element 1);
+    # element 0 is a reset: fresh colour, hidden channels zero
+    np.testing.assert_allclose(x[1, ..., 6:], np.asarray(hist[1]), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(x[0, ..., 6:9], jau[0], rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(x[0, ..., 9:], 0.0)
+    # and with motion, the motion channels follow it (f x the up-sampled LR vectors)
+    moving, _ = seqdata.to_jax(seqdata.sequence(T=2, B=2, max_motion=2.0))
+    frame = _at(moving, 1)
+    x, _, _ = kpn.prepare(kpn.State(hist), frame, config)
+    np.testing.assert_allclose(np.asarray(x)[..., 4:6], f * seqdata.jau_reference(
+        np.asarray(frame.motion, np.float64), half, f), rtol=0, atol=1e-5)

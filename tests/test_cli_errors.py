@@ -11,6 +11,7 @@ import pytest
 from jtus import cost, evaluate, upsample
 from jtus.data import __main__ as data_cli
 from jtus.data import dataset
+from tests import seqdata
 
 
 @pytest.fixture(scope="module")
@@ -91,28 +92,6 @@ def test_upsample_and_export_refuse_a_folder_with_old_frames(tiny_data, tmp_path
     assert data_cli.main(ex + ["--force"]) == 0
 
 
-def _jau_numpy(color, jitter, f):
-    """JAU written out: HR pixel centre q = (x + 0.5) / f in LR coordinates; LR sample
-    i sits at i + jitter (docs/conventions.md); bilinear between the two samples around
-    q - jitter, indices clamped at the border."""
-    T, h, w, _ = color.shape
-
-    def axis(n, jit):
-        t = (np.arange(n * f) + 0.5) / f - jit  # sample i is at i + jit: t indexes samples
-        i0 = np.floor(t).astype(int)
-        return np.clip(i0, 0, n - 1), np.clip(i0 + 1, 0, n - 1), t - i0
-
-    out = np.zeros((T, h * f, w * f, 3))
-    for k in range(T):
-        y0, y1, ay = axis(h, jitter[k, 1])
-        x0, x1, ax = axis(w, jitter[k, 0])
-        c = color[k].astype(np.float64)
-        top = c[y0][:, x0] * (1 - ax)[None, :, None] + c[y0][:, x1] * ax[None, :, None]
-        bot = c[y1][:, x0] * (1 - ax)[None, :, None] + c[y1][:, x1] * ax[None, :, None]
-        out[k] = top * (1 - ay)[:, None, None] + bot * ay[:, None, None]
-    return out
-
-
 def test_values_written_by_evaluate_and_upsample(tiny_data, tmp_path):
     """What the CLIs write, against quantities computed here: JAU from its definition
     in numpy, PSNR and SSIM from scikit-image, the frames read back from the EXRs."""
@@ -127,14 +106,14 @@ def test_values_written_by_evaluate_and_upsample(tiny_data, tmp_path):
         names = ds.videos("test")
         for name in names:
             frames, targets = ds.video("test", name, 4)
-            ref = _jau_numpy(frames.color[:, 0], frames.jitter[:, 0], 4)
+            ref = seqdata.jau_reference(frames.color[:, 0], frames.jitter[:, 0], 4)
             for o, t in zip(ref, targets[:, 0].astype(np.float64)):
                 psnr.append(peak_signal_noise_ratio(t, o, data_range=1.0))
                 ssim.append(structural_similarity(t, o, data_range=1.0, channel_axis=-1,
                                                   gaussian_weights=True, sigma=1.5,
                                                   use_sample_covariance=False))
         f0, _ = ds.video("test", names[0], 4)
-        first = _jau_numpy(f0.color[:, 0], f0.jitter[:, 0], 4)
+        first = seqdata.jau_reference(f0.color[:, 0], f0.jitter[:, 0], 4)
     out = tmp_path / "ev"
     assert evaluate.main(["--dataset", tiny_data, "--factor", "4", "--models", "jau", "--out",
                           str(out), "--quiet", "--no-crops"]) == 0
