@@ -308,3 +308,30 @@ def test_mlp_forward_and_gamma_against_numpy():
         want = _mlp_numpy(params, np.asarray(frame.color), np.asarray(frame.depth), 4, gamma,
                           config.slope, config.near, config.far)
         np.testing.assert_allclose(got, want, rtol=0, atol=5e-7)  # float32: 2.1e-7 measured
+
+
+def test_nsrr_ycbcr_option_converts_at_both_ends():
+    """``ycbcr=True``: the network sees BT.601 full-range YCbCr colour (written here
+    from the standard: Y = 0.299 R + 0.587 G + 0.114 B, Cb = 1/2 + (B - Y)/1.772,
+    Cr = 1/2 + (R - Y)/1.402) and its output is converted back to RGB: the same as the
+    RGB model fed YCbCr frames, its output converted back. Catches: the option
+    ignored at either end."""
+    from jtus.frame import Frame
+
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=2, B=1, reset_at=(1, 0)))
+    frame = _at(frames, 1)
+    rgb = np.asarray(frame.color, np.float64)
+    y = 0.299 * rgb[..., 0] + 0.587 * rgb[..., 1] + 0.114 * rgb[..., 2]
+    ycc = np.stack([y, 0.5 + (rgb[..., 2] - y) / 1.772, 0.5 + (rgb[..., 0] - y) / 1.402], -1)
+    yuv = nsrr.make(nsrr.Config(factor=4, fast=True, ycbcr=True))
+    plain = nsrr.make(nsrr.Config(factor=4, fast=True))
+    params = yuv.init(jax.random.PRNGKey(3))
+    got, _ = yuv.step(params, yuv.init_state(frame), frame)
+    alt = Frame(jnp.asarray(ycc, jnp.float32), *frame[1:])
+    out_ycc, _ = plain.step(params, plain.init_state(alt), alt)
+    o = np.asarray(out_ycc, np.float64)  # back to RGB, inverting the matrix above
+    r = o[..., 0] + 1.402 * (o[..., 2] - 0.5)
+    b = o[..., 0] + 1.772 * (o[..., 1] - 0.5)
+    g = (o[..., 0] - 0.299 * r - 0.114 * b) / 0.587
+    np.testing.assert_allclose(np.asarray(got), np.stack([r, g, b], -1), rtol=0, atol=1e-5)
+    assert float(jnp.abs(got - plain.step(params, plain.init_state(frame), frame)[0]).max()) > 1e-3
