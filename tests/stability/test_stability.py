@@ -144,13 +144,16 @@ def test_camera_cut_restarts_every_system(name):
     np.testing.assert_allclose(out[3:], _run(name, tail), atol=1e-5)
 
 
-@pytest.mark.parametrize("dtype,tol", [("bfloat16", 0.05), ("float16", 0.01)])
-def test_low_precision_rollouts_stay_close_to_float32(dtype, tol):
+# (max, mean) bounds at about 3x what was measured on this CPU over the 200 frames:
+# bfloat16 1.44e-3 / 7.9e-5, float16 4.1e-4 / 1.7e-5
+@pytest.mark.parametrize("dtype,max_err,mean_err", [("bfloat16", 5e-3, 2.5e-4),
+                                                    ("float16", 1.5e-3, 6e-5)])
+def test_low_precision_rollouts_stay_close_to_float32(dtype, max_err, mean_err):
     frames = _video(200, h=4)
     ref = _run("dlctus", frames)
     low = _run("dlctus", frames, dtype=dtype)
     assert np.all(np.isfinite(low))
-    assert np.abs(low - ref).max() < tol * 4 and np.abs(low - ref).mean() < tol
+    assert np.abs(low - ref).max() < max_err and np.abs(low - ref).mean() < mean_err
 
 
 def test_bptt_gradients_finite_and_bounded_through_120_frames():
