@@ -1,6 +1,5 @@
 """JAU and TUS (thesis sec. 2.4) as models."""
 
-import dataclasses
 
 import jax
 import jax.numpy as jnp
@@ -121,7 +120,6 @@ def test_thesis_presets_and_registry():
         models.build("nerf", 4)
     with pytest.raises(ValueError, match="rectify"):
         tus.Config(rectify="reject")
-    assert dataclasses.replace(tus.thesis(2), dilation=True).dilation
 
 
 @pytest.mark.parametrize("name", ["tus", "tus-mean", "kpn", "dlctus"])

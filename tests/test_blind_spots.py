@@ -1,6 +1,8 @@
 """Checks for implementation bugs that the rest of the suite let through (issue 18's
 audit): each test names the deliberate bug it catches, and was run against it."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -335,3 +337,22 @@ def test_nsrr_ycbcr_option_converts_at_both_ends():
     g = (o[..., 0] - 0.299 * r - 0.114 * b) / 0.587
     np.testing.assert_allclose(np.asarray(got), np.stack([r, g, b], -1), rtol=0, atol=1e-5)
     assert float(jnp.abs(got - plain.step(params, plain.init_state(frame), frame)[0]).max()) > 1e-3
+
+
+def test_tus_dilation_reprojects_with_the_dilated_motion():
+    """TUS with ``dilation=True`` equals TUS fed the dilated motion (replaces a test
+    that asserted the field it had just set). Catches: the option ignored."""
+    from jtus.models import tus
+
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=2, B=2, max_motion=2.0))
+    frame = _at(frames, 1)
+    base = tus.thesis(4)
+    state = tus.init_state(_at(frames, 0), base)
+    state = tus.State(state.history + jnp.asarray(
+        np.random.default_rng(9).uniform(-0.2, 0.2, size=state.history.shape), jnp.float32))
+    got, _ = tus.step({}, state, frame, dataclasses.replace(base, dilation=True))
+    dilated = frame._replace(motion=sampling.dilate_motion(frame.motion, frame.depth))
+    want, _ = tus.step({}, state, dilated, base)
+    plain, _ = tus.step({}, state, frame, base)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-6)
+    assert float(jnp.abs(plain - want).max()) > 1e-3  # control
