@@ -92,10 +92,11 @@ def test_inverse_count_converges_to_the_mean_of_the_jittered_samples():
     outs, state = rollout.outputs(m.step, {}, m.init_state(_first(frames)), frames)
     j = jau.make(jau.Config(factor=f))
     scaled, _ = rollout.outputs(j.step, {}, (), frames)
-    # init_state counts the first frame once and its step again: weights 2,1,...,1 / 17.
-    expect = (np.asarray(scaled).sum(0) + np.asarray(scaled[0])) / (T + 1)
+    # thesis sec. 2.4.5: with α = 1/N, eq. 34 is "an average over all samples", each
+    # weighing the same (an earlier version counted the first frame twice: 2,1,...,1/17)
+    expect = np.asarray(scaled).mean(0)
     np.testing.assert_allclose(outs[-1], expect, atol=1e-5)
-    np.testing.assert_allclose(state.history[..., 3], T + 1)
+    np.testing.assert_allclose(state.history[..., 3], T)
 
 
 def test_gaussian_filter_and_max_beta():

@@ -165,10 +165,11 @@ def _rectify(config, hist, color, xy):
 
 
 def _fresh(s, config):
-    """A reset history: the scaled input with N = 1 (counting frames) or N = 0
-    (counting samples: the interpolated values are no sample yet)."""
-    n = 1.0 if config.count == "frames" else 0.0
-    return jnp.concatenate([s, jnp.full(s.shape[:-1] + (1,), n, s.dtype)], -1)
+    """A reset history: the scaled input with N = 0. The step then counts the
+    current frame (N = 1, or β when counting samples), so with α = 1/N every frame
+    weighs the same, as the thesis's sec. 2.4.5 says of α = 1/N (an average over all
+    samples); the fresh colour is this frame's own input, not an earlier sample."""
+    return jnp.concatenate([s, jnp.zeros(s.shape[:-1] + (1,), s.dtype)], -1)
 
 
 def init_state(frame: Frame, config: Config = Config()) -> State:
