@@ -37,7 +37,7 @@ import numpy as np
 import optax
 from tqdm import tqdm
 
-from jtus import checkpoint, config as run_config, evaluate, models, recipe, rollout
+from jtus import checkpoint, config as run_config, evaluate, models, recipe, rollout, sharding
 from jtus.config import PRESETS, Config
 from jtus.data.dataset import Dataset
 from jtus.files import atomic_path
@@ -82,37 +82,6 @@ def make_train_step(model, loss_fn, optimizer, *, loss_frames, keep_at=None, rem
         return TrainState(ts.step + 1, params, opt_state), nxt, stats
 
     return jax.jit(train_step, donate_argnums=(0, 1)) if jit else train_step
-
-
-def data_mesh(batch):
-    """A 1-D ``data`` mesh over the local devices when there are several and they
-    divide the batch; None otherwise (one device: nothing to shard)."""
-    devices = jax.local_devices()
-    if len(devices) < 2:
-        return None
-    if batch % len(devices):
-        print(f"warning: batch {batch} is not a multiple of the {len(devices)} devices; "
-              f"training on one", file=sys.stderr)
-        return None
-    return jax.sharding.Mesh(np.array(devices), ("data",))
-
-
-def shard(tree, mesh, axis):
-    """Place every array of ``tree`` with its ``axis`` split over ``mesh``'s data axis
-    (arrays without that axis, or not divisible, are replicated)."""
-    from jax.sharding import NamedSharding, PartitionSpec as P
-
-    n = mesh.devices.size
-
-    def put(x):
-        x = jnp.asarray(x)
-        if x.ndim > axis and x.shape[axis] % n == 0:
-            return jax.device_put(x, NamedSharding(mesh, P(*([None] * axis), "data")))
-        return jax.device_put(x, NamedSharding(mesh, P()))
-
-    return jax.tree_util.tree_map(put, tree)
-
-
 
 
 # ---------------------------------------------------------------- epoch log
@@ -226,9 +195,9 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
     with atomic_path(os.path.join(workdir, "config.json")) as tmp:
         with open(tmp, "w") as fh:
             fh.write(run_config.to_json(config))
-    mesh = data_mesh(config.batch)
+    mesh = sharding.data_mesh(config.batch)
     if mesh is not None:  # batch split over the devices, parameters replicated
-        ts = shard(ts, mesh, axis=10**6)
+        ts = sharding.shard(ts, mesh, axis=10**6)
     plan = recipe.plan(config)
     accept = recipe.accept_for(config)
     step_fn = make_train_step(model, loss_fn, opt, loss_frames=plan.loss_frames,
@@ -254,8 +223,8 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
                 frames, targets = jax.tree_util.tree_map(jnp.asarray, (frames, targets))
                 carry = recipe.start_carry(model, frames, targets)
                 if mesh is not None:
-                    frames, targets = shard((frames, targets), mesh, axis=1)
-                    carry = shard(carry, mesh, axis=0)
+                    frames, targets = sharding.shard((frames, targets), mesh, axis=1)
+                    carry = sharding.shard(carry, mesh, axis=0)
                 for w in plan.windows:
                     sl = jax.tree_util.tree_map(lambda x: x[w.start:w.stop], (frames, targets))
                     ts, carry, st = step_fn(ts, carry, *sl)

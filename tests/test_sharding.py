@@ -7,7 +7,7 @@ import textwrap
 
 SCRIPT = textwrap.dedent("""
     import jax, jax.numpy as jnp, numpy as np, optax
-    from jtus import losses, rollout, train
+    from jtus import losses, rollout, sharding, train
     from jtus.models import dlctus
     from tests import seqdata
     assert len(jax.devices()) == 2, jax.devices()
@@ -25,11 +25,11 @@ SCRIPT = textwrap.dedent("""
                              targets[0])
     copy = lambda: jax.tree_util.tree_map(jnp.copy, params)  # the step donates its state
     one, _, s1 = step(train.create_train_state(copy(), opt), carry(), frames, targets)
-    mesh = train.data_mesh(4)
-    ts = train.shard(train.create_train_state(copy(), opt), mesh, axis=10**6)
-    fr, tg = train.shard((frames, targets), mesh, axis=1)
+    mesh = sharding.data_mesh(4)
+    ts = sharding.shard(train.create_train_state(copy(), opt), mesh, axis=10**6)
+    fr, tg = sharding.shard((frames, targets), mesh, axis=1)
     assert len(fr.color.sharding.device_set) == 2
-    two, _, s2 = step(ts, train.shard(carry(), mesh, axis=0), fr, tg)
+    two, _, s2 = step(ts, sharding.shard(carry(), mesh, axis=0), fr, tg)
     np.testing.assert_allclose(float(s1["loss"]), float(s2["loss"]), rtol=1e-6)
     upd = [np.asarray(a) - np.asarray(p) for a, p in zip(jax.tree_util.tree_leaves(one.params),
                                                         jax.tree_util.tree_leaves(params))]
