@@ -297,6 +297,8 @@ def write_sequence(frames, folder, fmt="exr", prefix="frame", srgb=True):
     Returns the paths."""
     from PIL import Image
 
+    from jtus.files import atomic_path
+
     if fmt not in IMAGE_FORMATS:
         raise ValueError(f"fmt: expected one of {IMAGE_FORMATS}, got {fmt!r}")
     frames = np.asarray(frames)
@@ -308,10 +310,11 @@ def write_sequence(frames, folder, fmt="exr", prefix="frame", srgb=True):
     paths = []
     for t, img in enumerate(frames):
         path = os.path.join(folder, f"{prefix}{t:04d}.{fmt}")
-        if fmt == "exr":
-            write_exr(path, {c: img[..., i] for i, c in enumerate("RGB")})
-        else:
-            v = linear_to_srgb(img) if srgb else np.clip(img, 0, 1)
-            Image.fromarray(np.round(v * 255).astype(np.uint8)).save(path)
+        with atomic_path(path) as tmp:  # each frame whole or absent
+            if fmt == "exr":
+                write_exr(tmp, {c: img[..., i] for i, c in enumerate("RGB")})
+            else:
+                v = linear_to_srgb(img) if srgb else np.clip(img, 0, 1)
+                Image.fromarray(np.round(v * 255).astype(np.uint8)).save(tmp, format="PNG")
         paths.append(path)
     return paths
