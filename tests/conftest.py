@@ -35,3 +35,14 @@ def x64():
 @pytest.fixture
 def rng():
     return np.random.default_rng(0)
+
+
+@pytest.fixture(scope="session")
+def tiny_data(tmp_path_factory):
+    """The ``tiny`` preset, generated once per test session (per xdist worker) and
+    only read by the tests that take it."""
+    from jtus.data import dataset
+
+    path = tmp_path_factory.mktemp("data") / "tiny.h5"
+    dataset.generate("tiny", path, progress=False)
+    return str(path)

@@ -14,13 +14,6 @@ from jtus.data import dataset
 from tests import seqdata
 
 
-@pytest.fixture(scope="module")
-def tiny_data(tmp_path_factory):
-    path = tmp_path_factory.mktemp("data") / "tiny.h5"
-    dataset.generate("tiny", path, progress=False)
-    return str(path)
-
-
 def _refused(capsys, main, argv, *words):
     capsys.readouterr()
     assert main(argv) == 2, argv

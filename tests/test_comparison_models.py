@@ -132,13 +132,6 @@ def test_mlp_removes_the_dc_term():
         np.random.default_rng(0).uniform(size=(2, 8, 8, 3)))
 
 
-@pytest.fixture(scope="module")
-def tiny_data(tmp_path_factory):
-    path = tmp_path_factory.mktemp("data") / "tiny.h5"
-    dataset.generate("tiny", path, progress=False)
-    return str(path)
-
-
 @pytest.mark.parametrize("name,loss", [("nsrr-fast", "ssim"), ("kpn", "kpn"), ("mlp", "l1")])
 def test_trains_with_decreasing_loss_and_evaluates(tiny_data, tmp_path, name, loss):
     config = dataclasses.replace(PRESETS["tiny"], model=name, loss=loss, dataset=tiny_data,

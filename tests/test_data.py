@@ -13,15 +13,8 @@ from jtus.data import conventions, dataset, exr
 from jtus.sim import __main__ as sim_cli
 
 
-@pytest.fixture(scope="module")
-def tiny(tmp_path_factory):
-    path = tmp_path_factory.mktemp("data") / "tiny.h5"
-    dataset.generate("tiny", path, progress=False)
-    return path
-
-
-def test_layout_and_round_trip(tiny):
-    with h5py.File(tiny, "r") as fh:
+def test_layout_and_round_trip(tiny_data):
+    with h5py.File(tiny_data, "r") as fh:
         assert fh.attrs["format"] == "jtus-dataset" and fh.attrs["version"] == 1
         assert fh.attrs["spp"] == 4 and "motion" in fh.attrs["conventions"]
         g = fh["train/camera_orbit_00"]
@@ -39,8 +32,8 @@ def test_layout_and_round_trip(tiny):
         np.testing.assert_array_equal(stored[k], ref["x4"][k])
 
 
-def test_crops_are_aligned(tiny):
-    with dataset.Dataset(tiny) as ds:
+def test_crops_are_aligned(tiny_data):
+    with dataset.Dataset(tiny_data) as ds:
         frames, targets, index = ds.crops("train", 4, 3, 5, 16, np.random.default_rng(1),
                                           return_index=True)
         assert frames.color.shape == (5, 3, 4, 4, 3) and targets.shape == (5, 3, 16, 16, 3)
@@ -59,7 +52,7 @@ def test_crops_are_aligned(tiny):
             ds.crops("train", 3, 1, 2, 12, np.random.default_rng(0))
 
 
-def test_generate_is_deterministic(tiny, tmp_path):
+def test_generate_is_deterministic(tiny_data, tmp_path):
     again = tmp_path / "again.h5"
     dataset.generate("tiny", again, progress=False)
 
@@ -70,7 +63,7 @@ def test_generate_is_deterministic(tiny, tmp_path):
                           if isinstance(v, h5py.Dataset) else None)
         return out
 
-    assert contents(again) == contents(tiny)
+    assert contents(again) == contents(tiny_data)
 
 
 def test_interrupted_generate_leaves_no_file(tmp_path, monkeypatch):
@@ -185,10 +178,10 @@ def test_exr_and_png_sequences(tmp_path):
     assert len(pngs) == 2 and os.path.getsize(pngs[0]) > 0
 
 
-def test_cli_smoke(tiny, tmp_path, capsys):
-    assert data_cli.main(["info", "--dataset", str(tiny)]) == 0
+def test_cli_smoke(tiny_data, tmp_path, capsys):
+    assert data_cli.main(["info", "--dataset", str(tiny_data)]) == 0
     assert "train: 2 videos" in capsys.readouterr().out
-    assert data_cli.main(["export", "--dataset", str(tiny), "--split", "test", "--video",
+    assert data_cli.main(["export", "--dataset", str(tiny_data), "--split", "test", "--video",
                           "objects_00", "--what", "color@4", "--format", "png",
                           "--out", str(tmp_path / "png")]) == 0
     assert len(os.listdir(tmp_path / "png")) == 8
@@ -314,12 +307,12 @@ def test_import_exr_refuses_bad_names_outputs_and_sidecars(tmp_path, capsys):
     assert data_cli.main(base + ["--sidecar", str(good), "--out", str(out), "--force"]) == 0
 
 
-def test_videos_record_their_depth_planes(tiny):
+def test_videos_record_their_depth_planes(tiny_data):
     """Each generated video records the near/far planes its device depth was made
     with (the scene's, by default conventions.NEAR/FAR)."""
     from jtus.data.conventions import FAR, NEAR
 
-    with dataset.Dataset(tiny) as ds:
+    with dataset.Dataset(tiny_data) as ds:
         for split in dataset.SPLITS:
             for name in ds.videos(split):
                 g = ds.group(split, name)

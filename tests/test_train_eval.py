@@ -11,14 +11,6 @@ import pytest
 
 from jtus import evaluate, models, recipe, train, upsample
 from jtus.config import PRESETS
-from jtus.data import dataset
-
-
-@pytest.fixture(scope="module")
-def tiny_data(tmp_path_factory):
-    path = tmp_path_factory.mktemp("data") / "tiny.h5"
-    dataset.generate("tiny", path, progress=False)
-    return str(path)
 
 
 def _config(tiny_data, **kw):
