@@ -102,7 +102,8 @@ def test_dataset_errors(tmp_path):
 
 def _exr_sequence(tmp_path, video, factor):
     """Write a rendered video as an external renderer might: motion in UV units with
-    y up, pointing previous-to-current; view-space depth under the name 'depth.V'."""
+    y up, pointing previous-to-current; view-space depth under the name 'depth.V'.
+    Returns the input and target folders and the sidecar that describes them."""
     lr, hr = tmp_path / "lr", tmp_path / "hr"
     lr.mkdir()
     hr.mkdir()
@@ -118,16 +119,20 @@ def _exr_sequence(tmp_path, video, factor):
                                              "vec.u": uv_up[..., 0], "vec.v": uv_up[..., 1]})
         exr.write_exr(hr / f"f{t:03d}.exr", {c: video["target"][t, ..., i]
                                              for i, c in enumerate("RGB")})
-    return lr, hr
+    sidecar = tmp_path / "spec.json"
+    sidecar.write_text(SIDECAR)
+    return lr, hr, sidecar
+
+
+# the ImportSpec sidecar describing what _exr_sequence writes
+SIDECAR = ('{"depth": "depth.V", "depth_kind": "view", "motion": ["vec.u", "vec.v"],'
+           ' "motion_units": "uv", "motion_y_up": true, "motion_negate": true}')
 
 
 def test_exr_import_converts_conventions(tmp_path):
     video = sim.render_video(sim.get_scene("objects"), "test", 0, 4, size=(32, 32), factors=(4,),
                              spp=1)
-    lr, hr = _exr_sequence(tmp_path, video, 4)
-    sidecar = tmp_path / "spec.json"
-    sidecar.write_text('{"depth": "depth.V", "depth_kind": "view", "motion": ["vec.u", "vec.v"],'
-                       ' "motion_units": "uv", "motion_y_up": true, "motion_negate": true}')
+    lr, hr, sidecar = _exr_sequence(tmp_path, video, 4)
     out = tmp_path / "imported.h5"
     assert data_cli.main(["import-exr", "--input", str(lr), "--target", str(hr), "--factor", "4",
                           "--sidecar", str(sidecar), "--out", str(out)]) == 0
@@ -150,7 +155,7 @@ def test_exr_import_converts_conventions(tmp_path):
 def test_exr_import_errors(tmp_path, capsys):
     video = sim.render_video(sim.get_scene("objects"), "test", 0, 2, size=(16, 16), factors=(4,),
                              spp=1)
-    lr, hr = _exr_sequence(tmp_path, video, 4)
+    lr, hr, _ = _exr_sequence(tmp_path, video, 4)  # read without its sidecar below
     out = tmp_path / "x.h5"
     rc = data_cli.main(["import-exr", "--input", str(lr), "--target", str(hr), "--factor", "4",
                         "--out", str(out)])
@@ -205,10 +210,7 @@ def test_exr_import_refuses_bad_values_and_frame_numbering(tmp_path, capsys):
 
     video = sim.render_video(sim.get_scene("objects"), "test", 0, 3, size=(16, 16), factors=(4,),
                              spp=1)
-    lr, hr = _exr_sequence(tmp_path, video, 4)
-    spec = tmp_path / "spec.json"
-    spec.write_text('{"depth": "depth.V", "depth_kind": "view", "motion": ["vec.u", "vec.v"],'
-                    ' "motion_units": "uv", "motion_y_up": true, "motion_negate": true}')
+    lr, hr, spec = _exr_sequence(tmp_path, video, 4)
     out = tmp_path / "x.h5"
 
     def run(lr_dir=lr, hr_dir=hr, sidecar=spec):
@@ -278,10 +280,7 @@ def test_y_up_jitter_on_the_edge_stays_legal():
 def test_import_exr_refuses_bad_names_outputs_and_sidecars(tmp_path, capsys):
     video = sim.render_video(sim.get_scene("objects"), "test", 0, 2, size=(16, 16), factors=(4,),
                              spp=1)
-    lr, hr = _exr_sequence(tmp_path, video, 4)
-    good = tmp_path / "spec.json"
-    good.write_text('{"depth": "depth.V", "depth_kind": "view", "motion": ["vec.u", "vec.v"],'
-                    ' "motion_units": "uv", "motion_y_up": true, "motion_negate": true}')
+    lr, hr, good = _exr_sequence(tmp_path, video, 4)
     out = tmp_path / "x.h5"
     base = ["import-exr", "--input", str(lr), "--target", str(hr), "--factor", "4"]
     assert data_cli.main(base + ["--sidecar", str(good), "--out", str(out)]) == 0
