@@ -27,7 +27,7 @@ class Plan(NamedTuple):
 
 
 def model_for(config: Config) -> models.Model:
-    return models.build(config.model, config.factor, **dict(config.model_overrides))
+    return models.for_run(config)
 
 
 def loss_for(config: Config):

@@ -230,7 +230,8 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
                     ts, carry, st = step_fn(ts, carry, *sl)
                     stats.append(st)
                 if progress and i % 10 == 9:  # one device sync per 10 sequences
-                    bar.set_postfix(loss=f"{float(jnp.mean(jnp.stack([s['loss'] for s in stats[-20:]]))):.4f}")
+                    recent = jnp.stack([s["loss"] for s in stats[-20:]])
+                    bar.set_postfix(loss=f"{float(jnp.mean(recent)):.4f}")
             rec = {"epoch": epoch, "step": int(ts.step), **_epoch_stats(stats, workdir, epoch)}
             val = [float(eval_loss(ts.params, recipe.start_carry(model, *c), *c))
                    for c in val_crops]

@@ -54,6 +54,12 @@ def build(name, factor, **overrides) -> Model:
     return make(config)
 
 
+def for_run(run_config) -> Model:
+    """The model a training run's config (``jtus.config.Config``) names: its model,
+    factor and model overrides."""
+    return build(run_config.model, run_config.factor, **dict(run_config.model_overrides))
+
+
 # ---------------------------------------------------------------- loading
 
 
@@ -82,6 +88,12 @@ def load_params(path, config_path=None):
     (``checkpoint.msgpack`` with ``config.json`` beside it) or exported weights
     (``<base>.msgpack`` with ``<base>.json``), checked against the model the config
     names."""
+    _, params, config = _load_checkpoint(path, config_path)
+    return params, config
+
+
+def _load_checkpoint(path, config_path=None):
+    """``(model, params, run config)``: ``load_params`` with the model it built."""
     import jax
     import jax.numpy as jnp
 
@@ -94,11 +106,11 @@ def load_params(path, config_path=None):
     if not os.path.exists(config_path):
         raise FileNotFoundError(f"{path}: its config {config_path} is missing")
     config = run_config.from_json(config_path)
-    model = build(config.model, config.factor, **dict(config.model_overrides))
+    model = for_run(config)
     template = model.init(jax.random.PRNGKey(0))
     params = checkpoint.read_params(path, template, f"{config.model} at {config.factor}x")
     # device arrays: numpy leaves cannot be indexed by traced values (KPN's phase)
-    return jax.tree_util.tree_map(jnp.asarray, params), config
+    return model, jax.tree_util.tree_map(jnp.asarray, params), config
 
 
 def load(spec_text, factor) -> Entry | None:
@@ -124,13 +136,12 @@ def load(spec_text, factor) -> Entry | None:
                   f"{factor}x model", file=sys.stderr)
             config = dlctus.Config(factor=factor)
             return Entry(label, dlctus.make(config), dlctus.load_torch_checkpoint(path, config))
-        params, config = load_params(path)
+        model, params, config = _load_checkpoint(path)
         if config.factor != factor:
             print(f"warning: {label} was trained for factor {config.factor}; skipped at "
                   f"{factor}x", file=sys.stderr)
             return None
-        return Entry(label, build(config.model, config.factor, **dict(config.model_overrides)),
-                     params)
+        return Entry(label, model, params)
     if spec_text in TRAINABLE:
         raise ValueError(f"model: {spec_text!r} needs weights; give LABEL=PATH (a .msgpack from "
                          f"jtus.train or a .pt), or 'shipped' for DLCTUS")
@@ -156,6 +167,6 @@ def load_all(specs, factor):
 
 
 __all__ = ["Cost", "Entry", "Model", "NAMES", "REGISTRY", "Spec", "TRAINABLE", "WEIGHTS",
-           "build", "config_for", "config_path_for", "dlctus", "jau", "kpn", "load",
+           "build", "config_for", "config_path_for", "for_run", "dlctus", "jau", "kpn", "load",
            "load_all", "load_params", "mlp", "nsrr", "param_count", "shipped_path", "spec",
            "tus"]
