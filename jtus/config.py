@@ -106,6 +106,13 @@ PRESETS = {
                       clip_norm=1.0, epochs=60, steps_per_epoch=200, val_batches=4,
                       val_videos=8, dataset="data/diverse.h5", data_preset="diverse"),
 }
+# HDR (docs/conventions.md): the diverse recipe on the same scenes with highlights above
+# 1 and an exposure per frame; the model runs on tone-mapped pre-exposed colour
+PRESETS["hdr"] = dataclasses.replace(PRESETS["diverse"], dataset="data/hdr.h5",
+                                     data_preset="hdr", model_overrides=(("hdr", True),))
+PRESETS["hdr-tiny"] = dataclasses.replace(PRESETS["tiny"], dataset="data/hdr-tiny.h5",
+                                          data_preset="hdr-tiny",
+                                          model_overrides=(("hdr", True),))
 
 
 def to_json(config: Config) -> str:

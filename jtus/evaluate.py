@@ -41,7 +41,9 @@ from jtus.data.dataset import Dataset
 
 def frame_metrics(factor):
     """Per-frame PSNR, SSIM, spatial error (L_st-linear at θ=0) and temporal error
-    (L_st-linear at θ=1, NaN on the first frame), for ``rollout.metrics``."""
+    (L_st-linear at θ=1, NaN on the first frame), for ``rollout.metrics``; on HDR
+    frames all of them on the tone-mapped pre-exposed colour (``losses.displayed``)."""
+    @losses.displayed
     def fn(out, target, prev_out, prev_target, has_prev, frame):
         x, y = losses.errors(out, target, prev_out, prev_target, has_prev, frame, factor)
         mean = lambda v: jnp.mean(v, axis=(1, 2, 3))  # noqa: E731

@@ -19,6 +19,7 @@ class Frame(NamedTuple):
     motion: jax.Array  # [B,h,w,2] backward motion in LR pixels, x right, y down
     jitter: jax.Array  # [B,2] sample offset inside the LR pixel, [0,1)^2
     reset: Optional[jax.Array] = None  # [B] bool: camera cut, re-initialize history
+    exposure: Optional[jax.Array] = None  # [B] > 0: pre-exposure of HDR colour (None: LDR)
 
 
 _CHANNELS = {"color": 3, "depth": 1, "motion": 2}
@@ -53,6 +54,12 @@ def validate(frame: Frame, factor: int | None = None, time_major: bool = False,
         raise ValueError(f"jitter: expected shape {lead_shape + (2,)}, got {frame.jitter.shape}")
     if frame.reset is not None and frame.reset.shape != lead_shape:
         raise ValueError(f"reset: expected shape {lead_shape}, got {frame.reset.shape}")
+    if frame.exposure is not None:
+        if frame.exposure.shape != lead_shape:
+            raise ValueError(f"exposure: expected shape {lead_shape} (one value per frame), "
+                             f"got {frame.exposure.shape}")
+        if not jnp.issubdtype(frame.exposure.dtype, jnp.floating):
+            raise ValueError(f"exposure: expected a floating dtype, got {frame.exposure.dtype}")
     if factor is not None:
         h, w = color.shape[lead:lead + 2]
         if (factor * h) % multiple or (factor * w) % multiple:
@@ -64,6 +71,11 @@ def validate(frame: Frame, factor: int | None = None, time_major: bool = False,
             if not np.all(np.isfinite(arr)):
                 bad = int(np.size(arr) - np.count_nonzero(np.isfinite(arr)))
                 raise ValueError(f"{name}: {bad} NaN or Inf values")
+        if frame.exposure is not None:
+            e = np.asarray(frame.exposure)
+            if not np.all(np.isfinite(e) & (e > 0)):
+                raise ValueError("exposure: expected finite values > 0 (the multiplier that "
+                                 f"pre-exposes HDR colour), got min {np.nanmin(e)}")
         jit = np.asarray(frame.jitter)
         if np.any((jit < 0) | (jit >= 1)):
             raise ValueError("jitter: expected values in [0, 1) (offset inside the LR pixel); "

@@ -106,8 +106,23 @@ def make(name, factor, theta=0.5, method="bilinear", perceptual_weights=None,
     else:
         raise ValueError(f"loss: expected one of {NAMES}, got {name!r}")
     if perceptual_weights:
-        return with_perceptual(base, perceptual_weights, perceptual_weight)
-    return base
+        base = with_perceptual(base, perceptual_weights, perceptual_weight)
+    return displayed(base)
+
+
+def displayed(fn):
+    """``fn(out, target, prev_out, prev_target, has_prev, frame)`` on what a viewer
+    sees: HDR frames (with an exposure) compare ``sampling.display`` of each image,
+    tone-mapped pre-exposed colour in [0, 1), so highlights do not dominate; LDR frames
+    (no exposure) compare the images themselves. Every loss and metric goes through it."""
+    def on_display(out, target, prev_out, prev_target, has_prev, frame, *rest):
+        e = frame.exposure
+        if e is None:
+            return fn(out, target, prev_out, prev_target, has_prev, frame, *rest)
+        d = lambda x: sampling.display(x, e)  # noqa: E731
+        return fn(d(out), d(target), d(prev_out), d(prev_target), has_prev,
+                  frame._replace(color=d(frame.color)), *rest)
+    return on_display
 
 
 def alias_mask(jau, target, sensitivity=4.0):

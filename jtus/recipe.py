@@ -92,6 +92,11 @@ def check_data(config: Config):
         if config.factor not in ds.factors:
             raise ValueError(f"factor: {config.dataset} holds factors {ds.factors}, got "
                              f"{config.factor}")
+        hdr = dict(config.model_overrides).get("hdr", False)
+        if ds.hdr and not hdr:
+            raise ValueError(f"dataset: {config.dataset} holds HDR colour with an exposure "
+                             "per frame; train a model on tone-mapped colour (preset hdr, "
+                             "or model override hdr=True)")
         if config.crop > min(ds.size):
             raise ValueError(f"crop: {config.crop} exceeds the frame size "
                              f"{ds.size[0]}x{ds.size[1]} of {config.dataset}")

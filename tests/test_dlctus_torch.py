@@ -1,6 +1,5 @@
 """DLCTUS in JAX against the independent PyTorch forward (tests/torch_dlctus.py)."""
 
-import io
 
 import jax
 import jax.numpy as jnp
@@ -9,7 +8,6 @@ import pytest
 import torch
 
 from jtus import losses, rollout
-from jtus.frame import Frame
 from jtus.models import dlctus
 from tests import seqdata, torch_dlctus
 

@@ -46,6 +46,7 @@ CONVENTIONS = {
 class Preset:
     """What ``generate`` renders: per split, (scene names, videos per scene, frames).
 
+    ``effects``: effects added to every scene (``("hdr", ...)`` for HDR data).
     ``jitters``: the jitter sequences a video draws from (``jtus.sampling.jitter``);
     each video's choice and its starting phase come from its own seed and are stored
     (``jitter`` per frame, the sequence's name in the video's attrs)."""
@@ -55,6 +56,7 @@ class Preset:
     spp_match: int
     splits: dict
     jitters: tuple = ("thesis",)
+    effects: tuple = ()   # added to every scene's own (``jtus.sim.with_effects``)
 
     def total_frames(self):
         return sum(len(s) * n * t for s, n, t in self.splits.values())
@@ -95,10 +97,20 @@ def _presets():
         "diverse-tiny": Preset((32, 32), (2, 4), 4, 1, {
             "train": (_random("train", 3), 1, 8), "val": (_random("val", 1), 1, 8),
             "test": (_random("test", 1) + ("objects",), 1, 8)}, VARIETY),
+        # HDR: the diverse family with highlights above 1 and an exposure per frame
+        "hdr": Preset((192, 192), (2, 4), 16, 1, {
+            "train": (_random("train", 200), 1, 16), "val": (_random("val", 8), 1, 16),
+            "test": (_random("test", 16) + all_, 1, 24)}, VARIETY, _HDR),
+        "hdr-tiny": Preset((32, 32), (2, 4), 4, 1, {
+            "train": (_random("train", 3), 1, 8), "val": (_random("val", 1), 1, 8),
+            "test": (_random("test", 1) + ("objects",), 1, 8)}, VARIETY, _HDR),
     }
 
 
-PRESET_NAMES = ("tiny", "default", "long", "paper", "diverse", "diverse-tiny")
+_HDR = ("hdr", "specular", "emissive_flicker")
+
+
+PRESET_NAMES = ("tiny", "default", "long", "paper", "diverse", "diverse-tiny", "hdr", "hdr-tiny")
 
 
 def preset(name) -> Preset:
@@ -122,6 +134,8 @@ def write_video(group, video, factors, spp_match):
     tgt = video["target"]
     group.create_dataset("target", data=tgt.astype(np.float16), chunks=_chunks(tgt.shape))
     group.create_dataset("reset", data=video["reset"].astype(bool))
+    if video.get("exposure") is not None:  # HDR colour (docs/conventions.md)
+        group.create_dataset("exposure", data=np.asarray(video["exposure"], np.float32))
     for f in factors:
         g = group.create_group(f"x{f}")
         g.attrs["mip_bias"] = mip_bias(f, spp_match)
@@ -157,7 +171,7 @@ def generate(name_or_preset, out, progress=True, scenes=None, custom=None):
     for names that are not built-in (scenes declared in JSON)."""
     from tqdm import tqdm
 
-    from jtus.sim import get_scene
+    from jtus.sim import get_scene, with_effects
     from jtus.sim.video import VideoRenderer
 
     p = preset(name_or_preset) if isinstance(name_or_preset, str) else name_or_preset
@@ -172,6 +186,7 @@ def generate(name_or_preset, out, progress=True, scenes=None, custom=None):
                     continue
                 if name not in renderers:
                     scene = custom[name] if custom and name in custom else get_scene(name)
+                    scene = with_effects(scene, p.effects)
                     renderers[name] = VideoRenderer(scene, p.size, p.factors, p.spp,
                                                     p.spp_match)
                 r = renderers[name]
@@ -210,6 +225,10 @@ class Dataset:
             raise ValueError(f"dataset: version {self.file.attrs['version']} is not {VERSION}")
         self.factors = tuple(int(f) for f in self.file.attrs["factors"])
         self.size = tuple(int(s) for s in self.file.attrs["size"])
+        # HDR when any video carries an exposure per frame; its LDR videos then read
+        # as exposure 1, so that every batch has one layout
+        self.hdr = any("exposure" in self.file[s][n] for s in SPLITS if s in self.file
+                       for n in self.file[s])
 
     def close(self):
         self.file.close()
@@ -249,9 +268,19 @@ class Dataset:
         x = g[f"x{factor}"]
         reset = g["reset"][:].copy()
         reset[0] = True
+        e = self._exposure(g, slice(None))
         frame = Frame(x["color"][:].astype(np.float32)[:, None], x["depth"][:][:, None],
-                      x["motion"][:][:, None], x["jitter"][:][:, None], reset[:, None])
+                      x["motion"][:][:, None], x["jitter"][:][:, None], reset[:, None],
+                      None if e is None else e[:, None])
         return frame, g["target"][:].astype(np.float32)[:, None]
+
+    def _exposure(self, g, ts):
+        """``[T]`` exposure of frames ``ts`` of video group ``g``, None in LDR datasets."""
+        if not self.hdr:
+            return None
+        if "exposure" in g:
+            return g["exposure"][ts].astype(np.float32)
+        return np.ones(g["reset"][ts].shape, np.float32)
 
     def crops(self, split, factor, batch, seq_len, crop, rng, return_index=False, accept=None,
               max_tries=20):
@@ -271,7 +300,8 @@ class Dataset:
         if not names:
             raise ValueError(f"dataset: no videos in split {split!r}")
         c = crop // factor
-        cols = {k: [] for k in ("color", "depth", "motion", "jitter", "reset", "target")}
+        cols = {k: [] for k in ("color", "depth", "motion", "jitter", "reset", "target",
+                                "exposure")}
         index = []
         for _ in range(batch):
             for _ in range(max_tries):
@@ -299,8 +329,11 @@ class Dataset:
             cols["reset"].append(r)
             cols["target"].append(g["target"][ts, y * factor:y * factor + crop,
                                               xx * factor:xx * factor + crop].astype(np.float32))
+            cols["exposure"].append(self._exposure(g, ts))
+        exposure = np.stack(cols.pop("exposure"), 1) if self.hdr else None
         st = {k: np.stack(v, 1) for k, v in cols.items()}
-        frame = Frame(st["color"], st["depth"], st["motion"], st["jitter"], st["reset"])
+        frame = Frame(st["color"], st["depth"], st["motion"], st["jitter"], st["reset"],
+                      exposure)
         return (frame, st["target"], index) if return_index else (frame, st["target"])
 
 

@@ -33,12 +33,44 @@ def bind(config, step, init=None, init_state=None) -> Model:
     """A ``Model`` of module functions ``step(params, state, frame, config)``,
     ``init(key, config)`` and ``init_state(frame, config)`` with ``config`` bound; a
     model without parameters (or without state) leaves ``init`` (``init_state``) out
-    and gets ``{}`` (``()``)."""
+    and gets ``{}`` (``()``). The bound step goes through ``exposed`` (HDR colour)."""
     return Model(init=(lambda key: init(key, config)) if init else (lambda key: {}),
                  init_state=((lambda frame: init_state(frame, config)) if init_state
                              else (lambda frame: ())),
-                 step=lambda params, state, frame: step(params, state, frame, config),
+                 step=exposed(lambda params, state, frame: step(params, state, frame, config),
+                              getattr(config, "hdr", False)),
                  config=config)
+
+
+def exposed(step, hdr):
+    """Every model's edge for HDR colour (docs/conventions.md, "HDR and exposure").
+
+    The model body sees pre-exposed colour ``exposure * color`` and, with ``hdr``
+    (a config field: the weights were trained on tone-mapped colour), tone-mapped by
+    ``sampling.tonemap``; its output is mapped back (inverse tone map, divided by the
+    exposure) to linear radiance. Its history stays in that pre-exposed, tone-mapped
+    space, as FSR 2's does. A frame without exposure counts as exposure 1, so an LDR
+    model (``hdr`` False) given exposure 1 computes exactly what it computes without."""
+    from jtus import sampling
+
+    def run(params, state, frame):
+        e = frame.exposure
+        if e is None and not hdr:
+            return step(params, state, frame)
+        c = frame.color
+        scale = None if e is None else sampling.exposure_scale(e, c)
+        if scale is not None:
+            c = c * scale
+        if hdr:
+            c = sampling.tonemap(c)
+        out, state = step(params, state, frame._replace(color=c, exposure=None))
+        if hdr:
+            out = sampling.inverse_tonemap(out)
+        if scale is not None:
+            out = out / scale.astype(out.dtype)
+        return out, state
+
+    return run
 
 
 class Cost(NamedTuple):

@@ -14,6 +14,8 @@ import math
 import jax
 import jax.numpy as jnp
 
+from jtus.sampling import pad_edge
+
 _DN = ("NHWC", "HWIO", "NHWC")
 
 
@@ -30,7 +32,7 @@ def _conv_edge_padded(x, kernel, bias):
     p = (kernel.shape[0] - 1) // 2
     if not p:
         return conv(x, kernel, bias), x
-    xp = jnp.pad(x, ((0, 0), (p, p), (p, p), (0, 0)), mode="edge")
+    xp = pad_edge(x, p)
     return conv(xp, kernel, bias)[:, p:-p, p:-p, :], xp
 
 

@@ -40,6 +40,7 @@ COUNTS = ("frames", "samples")
 @dataclasses.dataclass(frozen=True)
 class Config:
     factor: int = 4
+    hdr: bool = False        # trained on tone-mapped HDR colour (base.exposed)
     warp: str = "bicubic"
     warp_a: float = -0.75
     rectify: str = "clamp"
@@ -139,7 +140,7 @@ def _box(color, xy, with_mean):
     so that a nearest sample just outside the image (a jitter can put it there) keeps
     the statistics of its own clamped taps, which makes this equal, value for value,
     to gathering the 9 clamped nearest samples at HR (the test's reference)."""
-    p = jnp.pad(color, ((0, 0), (1, 1), (1, 1), (0, 0)), mode="edge")
+    p = sampling.pad_edge(color, 1)
     n = sampling.neighbourhood(p, 3)  # [B,h+2,w+2,C,9]
     stats = [n.min(-1), n.max(-1)] + ([n.mean(-1)] if with_mean else [])
     c = color.shape[-1]

@@ -39,3 +39,40 @@ def ycbcr_to_rgb(ycbcr):
     b = y + 2 * (1 - _KB) * cb
     g = (y - _KR * r - _KB * b) / _KG
     return jnp.stack([r, g, b], -1)
+
+
+# ---------------------------------------------------------------- HDR
+# The invertible tone map FSR 2 runs its history on (its ffx_fsr2_common.h ``Tonemap`` /
+# ``InverseTonemap``): ``c / (1 + max(r, g, b))`` maps linear HDR [0, inf) into [0, 1)
+# keeping hue; the inverse divides by ``1 - max``, clamped at ``TONEMAP_EPSILON`` (FSR 2's
+# ``FSR2_TONEMAP_EPSILON``, 1/65503) so an output at or above 1 maps to a finite
+# radiance, at most 65503, the largest float16 (the datasets' colour storage).
+TONEMAP_EPSILON = 1.0 / 65503.0
+
+
+def _max_rgb(x):
+    return jnp.max(x, axis=-1, keepdims=True)
+
+
+def tonemap(rgb):
+    """Linear HDR RGB (>= 0) -> [0, 1): ``rgb / (1 + max(0, r, g, b))``."""
+    return rgb / (1.0 + jnp.maximum(_max_rgb(rgb), 0.0))
+
+
+def inverse_tonemap(t):
+    """The inverse of ``tonemap``: ``t / max(epsilon, 1 - max(r, g, b))``."""
+    return t / jnp.maximum(1.0 - _max_rgb(t), TONEMAP_EPSILON)
+
+
+def exposure_scale(exposure, like):
+    """``exposure [B]`` shaped to multiply images ``like [B,...]``."""
+    return jnp.asarray(exposure, like.dtype).reshape(exposure.shape + (1,) * (like.ndim - 1))
+
+
+def display(rgb, exposure):
+    """What a viewer of HDR frames sees, and what jtus's losses and metrics compare:
+    the tone-mapped pre-exposed colour ``tonemap(exposure * rgb)`` in [0, 1); ``rgb``
+    itself when ``exposure`` is None (LDR data, already display-referred)."""
+    if exposure is None:
+        return rgb
+    return tonemap(rgb * exposure_scale(exposure, rgb))

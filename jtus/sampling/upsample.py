@@ -103,7 +103,7 @@ def _bilinear_phases(x, factor, wx, wy):
     # One fusion writing [B,h,f,w,f,C] (row-major, so the HR image is a reshape): every
     # tap is a broadcast slice of the edge-padded LR image. Stacking per-phase results
     # instead made XLA:CPU materialize them through slow concatenations.
-    p = jnp.pad(x, ((0, 0), (1, 1), (1, 1), (0, 0)), mode="edge")
+    p = pad_edge(x, 1)
     out = 0
     for ky in range(3):
         row = 0
@@ -156,13 +156,28 @@ def jitter_aligned_upsample(x, jitter, factor, method="bilinear", a=-0.75):
     return sample(x, xy, method=method, a=a)
 
 
+def pad_edge(x, p):
+    """Replicate the border of ``x [B,H,W,C]`` by ``p`` pixels on H and W.
+
+    Equal to ``jnp.pad(x, ((0, 0), (p, p), (p, p), (0, 0)), mode="edge")``, written as
+    one concatenation per spatial axis: ``jnp.pad`` also emits zero-width slices for the
+    unpadded axes, which jax2onnx 0.17 lowers to Reshapes onnxruntime rejects."""
+    if p == 0:
+        return x
+    x = jnp.concatenate([x[:, :1]] * p + [x] + [x[:, -1:]] * p, axis=1)
+    return jnp.concatenate([x[:, :, :1]] * p + [x] + [x[:, :, -1:]] * p, axis=2)
+
+
 def neighbourhood(x, size, mode="edge"):
     """``[B,H,W,C] -> [B,H,W,C,size*size]``: each pixel's ``size`` x ``size``
     neighbourhood in raster order (row by row), padded with ``mode`` (``"edge"``
     replicates, ``"constant"`` pads zeros)."""
     r = size // 2
     h, w = x.shape[1:3]
-    p = jnp.pad(x, ((0, 0), (r, r), (r, r), (0, 0)), mode=mode)
+    if mode == "edge":
+        p = pad_edge(x, r)
+    else:
+        p = jnp.pad(x, ((0, 0), (r, r), (r, r), (0, 0)), mode=mode)
     return jnp.stack([p[:, dy:dy + h, dx:dx + w] for dy in range(size) for dx in range(size)], -1)
 
 

@@ -37,6 +37,7 @@ class FrameState(NamedTuple):
     light: np.ndarray         # [L,3] per light: direction of travel or position
     emission: np.ndarray      # [K]
     cut: bool                 # a camera cut at this frame
+    exposure: float = 1.0     # pre-exposure of the frame's HDR colour (hdr), else 1
 
 
 def video_seed(scene_name, split, index):
@@ -84,6 +85,18 @@ class _Timeline:
         self.aspect = 1.0
         self.flicker_phase = rng.uniform(0, 2 * np.pi, size=len(scene.objects))
         self.noise = rng.normal(size=(length + 1, len(scene.objects)))
+        # drawn last and from its own stream: scenes without hdr keep their timelines
+        erng = np.random.default_rng([seed, 0xE4905E])
+        self.exposure_period = erng.uniform(48, 120)
+        self.exposure_phase = erng.uniform(0, 2 * np.pi)
+
+    def exposure(self, t):
+        """An auto-exposure-like curve: ``2^(stops * sin(2 pi t / period + phase))``,
+        periods of 48 to 120 frames (1 when the scene has no ``hdr``)."""
+        if not self.scene.has("hdr"):
+            return 1.0
+        a = 2 * np.pi * t / self.exposure_period + self.exposure_phase
+        return float(2.0 ** (self.scene.exposure_stops * np.sin(a)))
 
     def camera(self, phi):
         p = self.scene.path
@@ -152,7 +165,7 @@ class _Timeline:
         pos, yaw = self.objects(t)
         ppos, pyaw = self.objects(t - 1)
         return FrameState(cam, prev, pos, yaw, ppos, pyaw, self.light(t), self.emission(t),
-                          bool(self.cuts[t]))
+                          bool(self.cuts[t]), self.exposure(t))
 
 
 def timeline(scene: Scene, split: str, index: int, length: int, aspect: float):

@@ -22,7 +22,7 @@ import dataclasses
 
 import numpy as np
 
-from jtus.sim.scene import EFFECTS, Light, Material, Object, Path, Scene
+from jtus.sim.scene import Light, Material, Object, Path, Scene
 
 PREFIX = "random_"
 # seeds per split: train 0.., val 1,000,000.., test 2,000,000.. (never shared)
@@ -90,7 +90,9 @@ def _motion(rng, moving_p):
 
 
 def _draw_effects(rng):
-    effects = tuple(e for e in EFFECTS if rng.uniform() < _EFFECT_P[e])
+    # only the effects in _EFFECT_P are drawn (hdr is asked for): one draw each, in
+    # this order, so adding an effect to EFFECTS changes no existing scene
+    effects = tuple(e for e in _EFFECT_P if rng.uniform() < _EFFECT_P[e])
     return effects or ("texture_detail",)
 
 

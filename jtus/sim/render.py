@@ -184,7 +184,8 @@ def make_renderer(scene: Scene, motion: bool = True):
     """The jitted ``render(state, xy [N,2], pixel_angle) -> dict`` for this scene.
 
     ``pixel_angle`` is the texture filter's footprint in radians per sample (the
-    mip bias is folded into it). The dict holds ``color [N,3]`` (clamped to [0,1]),
+    mip bias is folded into it). The dict holds ``color [N,3]`` (clamped to [0,1]; with
+    ``hdr`` linear radiance >= 0, highlights scaled by ``scene.highlight_gain``),
     ``depth [N,1]`` and, with ``motion``, ``motion [N,2]`` (normalized units).
     """
     st = _Static(scene)
@@ -193,6 +194,8 @@ def make_renderer(scene: Scene, motion: bool = True):
     near, far = scene.near, scene.far
     horizon, zenith = (jnp.asarray(c, jnp.float32) for c in scene.sky)
     lights = (scene.light,) + tuple(scene.extra_lights)
+    hdr = has("hdr")
+    gain = scene.highlight_gain if hdr else 1.0
 
     def render(state, xy, pixel_angle):
         cam = state["camera"]
@@ -252,11 +255,13 @@ def make_renderer(scene: Scene, motion: bool = True):
                 h = ldir - dn
                 h = h / jnp.maximum(jnp.linalg.norm(h, axis=-1, keepdims=True), 1e-9)
                 lobe = jnp.maximum((n * h).sum(-1), 0.0) ** jnp.asarray(st.shine)[obj]
-                color = color + (jnp.asarray(st.spec)[obj] * lobe)[:, None] * lcol * vis
+                color = color + (gain * jnp.asarray(st.spec)[obj] * lobe)[:, None] * lcol * vis
         if has("emissive_flicker"):
-            color = color + state["emission"][st.index][obj][:, None] * jnp.asarray(st.color)[obj]
+            color = color + (gain * state["emission"][st.index][obj])[:, None] * jnp.asarray(st.color)[obj]
         sky = horizon + (zenith - horizon) * jnp.clip(dn[:, 1:2], 0.0, 1.0)
-        out = {"color": jnp.clip(jnp.where(hit[:, None], color, sky), 0.0, 1.0)}
+        color = jnp.where(hit[:, None], color, sky)
+        # LDR scenes clamp to display range; hdr keeps linear radiance (>= 0)
+        out = {"color": jnp.maximum(color, 0.0) if hdr else jnp.clip(color, 0.0, 1.0)}
         z = jnp.maximum(t_safe, near)
         out["depth"] = jnp.where(hit, jnp.clip(far / (far - near) * (1 - near / z), 0, 1), 1.0)[:, None]
         if motion:

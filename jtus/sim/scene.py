@@ -16,8 +16,10 @@ import json
 
 from jtus.data.conventions import FAR, NEAR
 
-EFFECTS = ("camera_motion", "object_motion", "thin_geometry", "texture_detail", "shadows",
-           "specular", "moving_light", "emissive_flicker", "camera_cut")
+# every effect of the display-referred (LDR) simulator; "everything" has all of them
+LDR_EFFECTS = ("camera_motion", "object_motion", "thin_geometry", "texture_detail", "shadows",
+               "specular", "moving_light", "emissive_flicker", "camera_cut")
+EFFECTS = LDR_EFFECTS + ("hdr",)
 KINDS = ("plane", "box", "sphere", "rod")
 TEXTURES = ("none", "checker", "stripes", "zoneplate", "fbm", "fbm_aniso", "bricks", "tiles",
             "glyphs", "wood", "marble", "dots")
@@ -87,6 +89,8 @@ class Scene:
     sky: tuple = ((0.75, 0.8, 0.9), (0.3, 0.45, 0.75))  # horizon, zenith
     near: float = NEAR
     far: float = FAR
+    highlight_gain: float = 12.0          # hdr: specular and emissive radiance scale
+    exposure_stops: float = 1.0           # hdr: amplitude of the exposure curve, in stops
 
     def __post_init__(self):
         bad = [e for e in self.effects if e not in EFFECTS]
@@ -112,6 +116,9 @@ class Scene:
             if c2 and len(c2) != 3:
                 raise ValueError(f"objects[{i}].material.color2: expected () or 3 numbers, "
                                  f"got {c2!r}")
+        if not self.highlight_gain > 0 or not self.exposure_stops >= 0:
+            raise ValueError(f"highlight_gain/exposure_stops: expected > 0 and >= 0, got "
+                             f"{self.highlight_gain}, {self.exposure_stops}")
         if not 0 < self.near < self.far:
             raise ValueError(f"near/far: expected 0 < near < far, got {self.near}, {self.far}")
 

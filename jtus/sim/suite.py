@@ -6,7 +6,7 @@ its declared effects (an undeclared effect's parameters are ignored by the rende
 
 from __future__ import annotations
 
-from jtus.sim.scene import EFFECTS, Light, Material, Object, Path, Scene
+from jtus.sim.scene import LDR_EFFECTS, Light, Material, Object, Path, Scene
 
 GROUND = Object("plane", (0, 0, 0), (-1, 0, -1),
                 material=Material((0.55, 0.55, 0.5), "checker", 1.0))
@@ -85,7 +85,7 @@ _SUITE = {
                     Path("dolly", radius=6.0, height=1.2, speed=0.05), Light()),
     "plaza_day": ("plaza", ("camera_motion", "object_motion", "shadows", "specular"),
                   Path("orbit", radius=7.0, height=2.5, speed=0.015), Light()),
-    "everything": ("courtyard", EFFECTS, Path("orbit", speed=0.025, cut_every=30), _POINT),
+    "everything": ("courtyard", LDR_EFFECTS, Path("orbit", speed=0.025, cut_every=30), _POINT),
 }
 
 NAMES = tuple(_SUITE)
@@ -102,6 +102,27 @@ def get(name: str) -> Scene:
         raise ValueError(f"scene: expected one of {NAMES} or random_<seed>, got {name!r}")
     layout, effects, path, light = _SUITE[name]
     return Scene(name, tuple(effects), _LAYOUTS[layout](), light, path)
+
+
+def with_effects(scene: Scene, add) -> Scene:
+    """``scene`` with the effects ``add`` as well (those it lacks, in ``EFFECTS``
+    order). A randomized scene is drawn again with them, so that effects that shape
+    its objects (emitters for ``emissive_flicker``, rods for ``thin_geometry``) get
+    them; layout, lights, sky and path stay those of its seed."""
+    import dataclasses
+
+    from jtus.sim import randomized
+    from jtus.sim.scene import EFFECTS
+
+    missing = [e for e in add if e not in scene.effects]
+    if not missing:
+        return scene
+    effects = tuple(e for e in EFFECTS if e in scene.effects or e in missing)
+    seed = randomized.seed_of(scene.name)
+    if seed is not None and randomized.random_scene(seed) == dataclasses.replace(
+            scene, name=randomized.name_of(seed)):
+        return randomized.random_scene(seed, effects, name=scene.name)
+    return dataclasses.replace(scene, effects=effects)
 
 
 def all_scenes():

@@ -87,15 +87,17 @@ class VideoRenderer:
 
     def video(self, split, index, length, progress=None, jitter="thesis", jitter_phase=0):
         """A dict: ``target [T,H,W,3]``, ``reset [T]``, and per factor ``x{f}`` a dict
-        of ``color``, ``depth``, ``motion``, ``jitter``. ``jitter`` names the sequence
+        of ``color``, ``depth``, ``motion``, ``jitter``; ``exposure [T]`` too with ``hdr``. ``jitter`` names the sequence
         (``jtus.sampling.jitter_sequence``); frame t uses element ``t + jitter_phase``."""
         states = paths.timeline(self.scene, split, index, length, self.W / self.H)
-        out = {"target": [], "reset": [], **{f"x{f}": {"color": [], "depth": [], "motion": [],
-                                                       "jitter": []} for f in self.factors}}
+        out = {"target": [], "reset": [], "exposure": [],
+               **{f"x{f}": {"color": [], "depth": [], "motion": [], "jitter": []}
+                  for f in self.factors}}
         seqs = {f: jitter_sequence(jitter, f) for f in self.factors}
         for t, st in enumerate(states):
             out["target"].append(self.target(st))
             out["reset"].append(t == 0 or st.cut)
+            out["exposure"].append(st.exposure)
             for f in self.factors:
                 jit = seqs[f][(t + jitter_phase) % len(seqs[f])]
                 c, d, m = self.input(st, f, jit)
@@ -108,6 +110,8 @@ class VideoRenderer:
                 progress(1)
         res = {"target": np.stack(out["target"]).astype(np.float32),
                "reset": np.array(out["reset"], bool)}
+        if self.scene.has("hdr"):
+            res["exposure"] = np.array(out["exposure"], np.float32)
         for f in self.factors:
             res[f"x{f}"] = {k: np.stack(v).astype(np.float32) for k, v in out[f"x{f}"].items()}
         return res
