@@ -3,6 +3,7 @@
     python -m jtus.data generate --preset default --out data/default.h5
     python -m jtus.data import-exr --input renders/lr --target renders/hr --factor 4 \\
         --sidecar renders/spec.json --out data/mine.h5
+    python -m jtus.data import-nss --root captures/nss --factor 2 --out data/nss-x2.h5
     python -m jtus.data export --dataset data/default.h5 --split test --video objects_00 \\
         --what target --format png --out out/objects
     python -m jtus.data info --dataset data/default.h5
@@ -44,6 +45,14 @@ def _parser():
     i.add_argument("--depth-kind", choices=("device", "reversed", "linear", "view"))
     i.add_argument("--near", type=float)
     i.add_argument("--far", type=float)
+    s = sub.add_parser("import-nss", help="Arm's NSS dataset layout into the HDF5 layout")
+    s.add_argument("--root", required=True, help="the NSS dataset folder (0000.json, ...)")
+    s.add_argument("--factor", type=int, required=True, help="the x<ratio> folder to read")
+    s.add_argument("--out", required=True)
+    s.add_argument("--split", default="test", choices=dataset.SPLITS)
+    s.add_argument("--sequences", help="comma-separated sequence names (default: all)")
+    s.add_argument("--force", action="store_true", help="replace an existing --out")
+    s.add_argument("--quiet", action="store_true")
     e = sub.add_parser("export", help="write a dataset video as EXR or PNG frames")
     e.add_argument("--dataset", required=True)
     e.add_argument("--split", default="test")
@@ -119,6 +128,14 @@ def main(argv=None):
             print(f"wrote {args.out}")
         elif args.cmd == "import-exr":
             _import(args)
+        elif args.cmd == "import-nss":
+            from jtus.data import nss
+
+            check_out_file(args.out, args.force, kind="an .h5 file")
+            names = args.sequences.split(",") if args.sequences else None
+            nss.import_nss(args.root, args.factor, args.out, args.split, names,
+                           progress=not args.quiet)
+            print(f"wrote {args.out}")
         elif args.cmd == "export":
             _export(args)
         else:

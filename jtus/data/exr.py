@@ -80,8 +80,10 @@ class ImportSpec:
     near: float = NEAR
     far: float = FAR
     jitter: object = "thesis"        # "thesis", a list of [x, y] per frame, or one [x, y]
-    jitter_kind: str = "unit"        # unit [0,1) | centered [-0.5, 0.5)
+    jitter_kind: str = "unit"        # unit [0,1) | centered [-0.5, 0.5) | fsr2 (centre - j)
     jitter_y_up: bool = False
+    exposure: object = None          # HDR: one number, or one per frame (None: LDR)
+    exposure_channel: str = ""       # or the input channel holding it (its frame mean)
 
     def __post_init__(self):
         def names(field, n):
@@ -110,6 +112,17 @@ class ImportSpec:
                 raise ValueError(f"{field}: expected a number, got {v!r}")
         if isinstance(self.jitter, str) and self.jitter != "thesis":
             raise ValueError(f"jitter: expected 'thesis' or numbers, got {self.jitter!r}")
+        if not isinstance(self.exposure_channel, str):
+            raise ValueError(f"exposure_channel: expected a channel name, got "
+                             f"{self.exposure_channel!r}")
+        if self.exposure is not None and self.exposure_channel:
+            raise ValueError("exposure, exposure_channel: give one of them, not both")
+        if self.exposure is not None:
+            e = np.asarray(self.exposure, dtype=object)
+            if e.ndim > 1 or not all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                     for x in e.reshape(-1)):
+                raise ValueError(f"exposure: expected a number or a list of numbers, got "
+                                 f"{self.exposure!r}")
 
     @classmethod
     def from_json(cls, path):
@@ -151,7 +164,8 @@ def _frames(folder):
     return out
 
 
-def _check_values(path, field, v, lo=None, hi=None):
+def check_values(path, field, v, lo=None, hi=None):
+    """``ValueError`` naming ``path`` and ``field`` on NaN/Inf or values outside [lo, hi]."""
     bad = ~np.isfinite(v)
     if bad.any():
         raise ValueError(f"{path}: {field} has {int(bad.sum())} NaN or Inf values")
@@ -195,7 +209,7 @@ def load_sequence(input_dir, target_dir, factor, spec: ImportSpec = ImportSpec()
         targets = [tby[n] for n in numbers]
     else:
         targets = [None] * len(inputs)
-    cols = {"color": [], "depth": [], "motion": [], "target": []}
+    cols = {"color": [], "depth": [], "motion": [], "target": [], "exposure": []}
     shape = None
     for fin, ftg in zip(inputs, targets):
         ch, _ = read_exr(fin)
@@ -206,24 +220,27 @@ def load_sequence(input_dir, target_dir, factor, spec: ImportSpec = ImportSpec()
         elif (h, w) != shape:
             raise ValueError(f"{fin}: size {h}x{w} differs from the first frame's "
                              f"{shape[0]}x{shape[1]}")
-        _check_values(fin, "color", color)
+        check_values(fin, "color", color)
         depth = _pick(ch, (spec.depth,), fin, "depth")
-        _check_values(fin, f"depth ({spec.depth_kind})", depth, lo=0.0,
+        check_values(fin, f"depth ({spec.depth_kind})", depth, lo=0.0,
                       hi=1.0 if spec.depth_kind in ("device", "reversed", "linear") else None)
         with np.errstate(divide="ignore", invalid="ignore"):
             depth = conventions.depth_to_device(depth, spec.depth_kind, spec.near, spec.far)
-        _check_values(fin, f"depth (as device depth, from {spec.depth_kind} with near "
+        check_values(fin, f"depth (as device depth, from {spec.depth_kind} with near "
                       f"{spec.near}, far {spec.far})", depth, lo=0.0, hi=1.0)
         motion = conventions.motion_to_jtus(_pick(ch, spec.motion, fin, "motion"), w, h,
                                             spec.motion_units, spec.motion_y_up,
                                             spec.motion_negate)
-        _check_values(fin, "motion", motion)
+        check_values(fin, "motion", motion)
+        if spec.exposure_channel:
+            cols["exposure"].append(float(_pick(ch, (spec.exposure_channel,), fin,
+                                                "exposure").mean()))
         for k, v in (("color", color), ("depth", depth), ("motion", motion)):
             cols[k].append(v.astype(np.float32))
         if ftg is not None:
             tch, _ = read_exr(ftg)
             target = _pick(tch, spec.target_color, ftg, "target")
-            _check_values(ftg, "target", target)
+            check_values(ftg, "target", target)
             if target.shape[:2] != (h * factor, w * factor):
                 raise ValueError(f"{ftg}: target size {target.shape[0]}x{target.shape[1]} is "
                                  f"not factor {factor} x the input's {h}x{w}")
@@ -241,6 +258,16 @@ def load_sequence(input_dir, target_dir, factor, spec: ImportSpec = ImportSpec()
                           "jitter": jitter.astype(np.float32)}}
     if cols["target"]:
         out["target"] = np.stack(cols["target"])
+    exposure = cols["exposure"] if spec.exposure_channel else spec.exposure
+    if exposure is not None:
+        e = np.broadcast_to(np.asarray(exposure, np.float64), (n,)) if np.ndim(exposure) == 0 \
+            else np.asarray(exposure, np.float64)
+        if e.shape != (n,):
+            raise ValueError(f"exposure: expected one number or {n} (one per frame), got "
+                             f"{e.shape[0]}")
+        if not np.all(np.isfinite(e) & (e > 0)):
+            raise ValueError(f"exposure: expected finite values > 0, got min {np.nanmin(e):.4g}")
+        out["exposure"] = e.astype(np.float32)
     return out
 
 
