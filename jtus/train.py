@@ -133,7 +133,8 @@ def _epoch_stats(stats, workdir, epoch):
     """The epoch's per-step stats, fetched from the device once: loss and gradient
     norm means, the largest gradient norm, the final parameter norm. A non-finite loss
     or gradient stops the run before anything of this epoch is written."""
-    loss, gnorm, pnorm = (np.asarray(jnp.stack([s[k] for s in stats]))
+    stats = sharding.to_host(stats)
+    loss, gnorm, pnorm = (np.stack([s[k] for s in stats])
                           for k in ("loss", "grad_norm", "param_norm"))
     bad = ~(np.isfinite(loss) & np.isfinite(gnorm))
     if bad.any():
@@ -176,15 +177,28 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
     ``overwrite``, never silently mixed; everything is checked before the first write.
     A non-finite loss or gradient stops the run and leaves the last good checkpoint.
     ``stop_after``: stop (as if killed) after that many epochs of this call, for tests.
+
+    In a multi-process run (``sharding.initialize`` first) every process trains on its
+    own ``batch / processes`` crops of each step (its own random stream) and process 0
+    alone writes files; the workdir and dataset must be on a file system they share.
     """
+    procs, main = jax.process_count(), sharding.is_main()
     _prepare_workdir(config, workdir, resume, overwrite)
-    recipe.ensure_dataset(config, progress)
+    if main:
+        recipe.ensure_dataset(config, progress)
+    if procs > 1:
+        from jax.experimental import multihost_utils
+        multihost_utils.sync_global_devices("jtus: dataset ready")
+        if config.batch % procs:
+            raise ValueError(f"batch: {config.batch} is not a multiple of the {procs} "
+                             "processes")
     recipe.check_data(config)
     model, loss_fn, opt = recipe.model_for(config), recipe.loss_for(config), \
         recipe.optimizer_for(config)
     ts = create_train_state(recipe.init_params(config), opt)
-    os.makedirs(workdir, exist_ok=True)
-    if overwrite and not resume:  # the old run goes only once the new one is valid
+    if main:
+        os.makedirs(workdir, exist_ok=True)
+    if overwrite and not resume and main:  # the old run goes only once the new one is valid
         for name in (checkpoint.CHECKPOINT, checkpoint.METRICS, "metrics.csv", "training.png"):
             if os.path.exists(os.path.join(workdir, name)):
                 os.remove(os.path.join(workdir, name))
@@ -192,9 +206,10 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
     if resume and os.path.exists(os.path.join(workdir, checkpoint.CHECKPOINT)):
         ts, start_epoch, history = checkpoint.restore_train_state(workdir, ts)
         print(f"resumed {workdir} after epoch {start_epoch}", file=sys.stderr)
-    with atomic_path(os.path.join(workdir, "config.json")) as tmp:
-        with open(tmp, "w") as fh:
-            fh.write(run_config.to_json(config))
+    if main:
+        with atomic_path(os.path.join(workdir, "config.json")) as tmp:
+            with open(tmp, "w") as fh:
+                fh.write(run_config.to_json(config))
     mesh = sharding.data_mesh(config.batch)
     if mesh is not None:  # batch split over the devices, parameters replicated
         ts = sharding.shard(ts, mesh, axis=10**6)
@@ -211,14 +226,17 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
             for _ in range(config.val_batches)]
         val_names = ds.videos("val")[:config.val_videos]
         done = 0
+        local_batch = config.batch // procs
         for epoch in range(start_epoch + 1, config.epochs + 1):
-            rng = np.random.default_rng([config.seed, epoch])
+            # one stream per epoch (and per process): resume draws the same crops
+            rng = np.random.default_rng([config.seed, epoch] + (
+                [jax.process_index()] if procs > 1 else []))
             t0 = time.perf_counter()
             stats = []
             bar = tqdm(range(config.steps_per_epoch), desc=f"epoch {epoch}/{config.epochs}",
                        disable=not progress, leave=False)
             for i in bar:
-                frames, targets = ds.crops("train", config.factor, config.batch, config.seq_len,
+                frames, targets = ds.crops("train", config.factor, local_batch, config.seq_len,
                                            config.crop, rng, accept=accept)
                 frames, targets = jax.tree_util.tree_map(jnp.asarray, (frames, targets))
                 carry = recipe.start_carry(model, frames, targets)
@@ -230,15 +248,17 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
                     ts, carry, st = step_fn(ts, carry, *sl)
                     stats.append(st)
                 if progress and i % 10 == 9:  # one device sync per 10 sequences
-                    recent = jnp.stack([s["loss"] for s in stats[-20:]])
-                    bar.set_postfix(loss=f"{float(jnp.mean(recent)):.4f}")
-            rec = {"epoch": epoch, "step": int(ts.step), **_epoch_stats(stats, workdir, epoch)}
-            val = [float(eval_loss(ts.params, recipe.start_carry(model, *c), *c))
+                    recent = sharding.to_host([s["loss"] for s in stats[-20:]])
+                    bar.set_postfix(loss=f"{float(np.mean(recent)):.4f}")
+            rec = {"epoch": epoch, "step": int(sharding.to_host(ts.step)),
+                   **_epoch_stats(stats, workdir, epoch)}
+            params = sharding.to_host(ts.params) if procs > 1 else ts.params
+            val = [float(eval_loss(params, recipe.start_carry(model, *c), *c))
                    for c in val_crops]
             psnr, ssim = [], []
             for name in val_names:
                 vf, vt = ds.video("val", name, config.factor)
-                m = evaluate.video_metrics(model, ts.params,
+                m = evaluate.video_metrics(model, params,
                                            *jax.tree_util.tree_map(jnp.asarray, (vf, vt)),
                                            config.factor)
                 psnr.append(m["psnr"])
@@ -252,12 +272,14 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
             if why:
                 print(f"warning: {why}: the network may have collapsed (saturated outputs pass "
                       f"no gradient; try a lower --lr, see docs/weights.md)", file=sys.stderr)
-            checkpoint.save_train_state(workdir, ts, epoch, history)
-            write_csv(workdir, history)
-            plot_history(history, os.path.join(workdir, "training.png"))
-            print(f"epoch {epoch}: train {rec['train_loss']:.4f}  val {rec['val_loss']:.4f}  "
-                  f"PSNR {rec['val_psnr']:.2f} dB  SSIM {rec['val_ssim']:.4f}  "
-                  f"|g| {rec['grad_norm']:.3g}  ({rec['seconds']:.0f} s)", file=sys.stderr)
+            if main:  # the other processes hold the same state and history
+                checkpoint.save_train_state(workdir, sharding.to_host(ts) if procs > 1 else ts,
+                                            epoch, history)
+                write_csv(workdir, history)
+                plot_history(history, os.path.join(workdir, "training.png"))
+                print(f"epoch {epoch}: train {rec['train_loss']:.4f}  val {rec['val_loss']:.4f}  "
+                      f"PSNR {rec['val_psnr']:.2f} dB  SSIM {rec['val_ssim']:.4f}  "
+                      f"|g| {rec['grad_norm']:.3g}  ({rec['seconds']:.0f} s)", file=sys.stderr)
             done += 1
             if stop_after is not None and done >= stop_after:
                 break
@@ -288,6 +310,13 @@ def _parser():
             typ = {"int": int, "float": float}.get(str(f.type), str)
             p.add_argument(flag, type=typ, default=None)
     p.add_argument("--warp", help="DLCTUS reprojection warp (any jtus.sampling method)")
+    d = p.add_argument_group("multi-process data parallelism (docs/distributed.md)")
+    d.add_argument("--distributed", action="store_true",
+                   help="join a multi-process run (jax.distributed); without the three "
+                        "flags below JAX reads them from the cluster (SLURM, Open MPI)")
+    d.add_argument("--coordinator", help="host:port of process 0")
+    d.add_argument("--num-processes", type=int)
+    d.add_argument("--process-id", type=int)
     return p
 
 
@@ -307,6 +336,13 @@ def main(argv=None):
     args = _parser().parse_args(argv)
     from jtus.cli import sigterm_as_exit
     sigterm_as_exit()
+    given = [x is not None for x in (args.coordinator, args.num_processes, args.process_id)]
+    if any(given) and not (args.distributed and all(given)):
+        print("error: --coordinator, --num-processes and --process-id go together, with "
+              "--distributed", file=sys.stderr)
+        return 2
+    if args.distributed:
+        sharding.initialize(args.coordinator, args.num_processes, args.process_id)
     try:
         config = config_from_args(args)
         workdir = args.workdir or os.path.join("runs", f"{args.preset}-x{config.factor}")
@@ -315,6 +351,8 @@ def main(argv=None):
     except (ValueError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    if not sharding.is_main():
+        return 0
     print(f"checkpoint: {os.path.join(workdir, checkpoint.CHECKPOINT)}", file=sys.stderr)
     if not args.no_eval:
         specs = ["jau", "tus", "shipped", f"trained={os.path.join(workdir, checkpoint.CHECKPOINT)}"]

@@ -330,7 +330,8 @@ class Dataset:
             cols["target"].append(g["target"][ts, y * factor:y * factor + crop,
                                               xx * factor:xx * factor + crop].astype(np.float32))
             cols["exposure"].append(self._exposure(g, ts))
-        exposure = np.stack(cols.pop("exposure"), 1) if self.hdr else None
+        exposure = cols.pop("exposure")
+        exposure = np.stack(exposure, 1) if self.hdr else None
         st = {k: np.stack(v, 1) for k, v in cols.items()}
         frame = Frame(st["color"], st["depth"], st["motion"], st["jitter"], st["reset"],
                       exposure)
