@@ -31,8 +31,10 @@ def _load_input(args):
         spec = exr.ImportSpec.from_json(args.exr_spec) if args.exr_spec else exr.ImportSpec()
         video = exr.load_sequence(args.input, None, args.factor, spec)
         x = video[f"x{args.factor}"]
+        e = video.get("exposure")
         return Frame(x["color"][:, None], x["depth"][:, None], x["motion"][:, None],
-                     x["jitter"][:, None], video["reset"][:, None])
+                     x["jitter"][:, None], video["reset"][:, None],
+                     None if e is None else e[:, None])
     from jtus.data.dataset import Dataset
 
     with Dataset(args.input) as ds:
@@ -98,9 +100,18 @@ def main(argv=None):
             raise ValueError(f"model {args.model!r} is not available at {args.factor}x")
         frames = _load_input(args)
         outs = upsample(entry, frames)
-        paths = exr.write_sequence(outs, args.out, args.format)
+        shown, lr = outs, np.asarray(frames.color)[:, 0]
+        if frames.exposure is not None:
+            # HDR: 8-bit images and the MP4 show the tone-mapped pre-exposed colour
+            # (docs/conventions.md); EXR frames keep the radiance
+            from jtus.sampling import display
+            e = jnp.asarray(frames.exposure)
+            shown, lr = (np.asarray(display(jnp.asarray(x)[:, None], e))[:, 0]
+                         for x in (outs, lr))
+        paths = exr.write_sequence(outs if args.format == "exr" else shown, args.out,
+                                   args.format)
         if args.mp4:
-            write_mp4(args.mp4, np.asarray(frames.color)[:, 0], outs, args.factor)
+            write_mp4(args.mp4, lr, shown, args.factor)
     except (ValueError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

@@ -199,4 +199,5 @@ def test_scene_json_round_trip_and_errors(tmp_path):
 def test_suite_covers_every_effect_alone():
     alone = {sim.get_scene(n).effects[0] for n in sim.SCENES if len(sim.get_scene(n).effects) == 1}
     assert len(sim.SCENES) >= 8
-    assert set(sim.EFFECTS) - alone <= {"moving_light"}  # moving light is shown with shadows
+    # moving light is shown with shadows; hdr is added to scenes by the hdr preset
+    assert set(sim.EFFECTS) - alone <= {"moving_light", "hdr"}
