@@ -123,7 +123,12 @@ def from_json(path) -> Config:
     """The ``Config`` in the JSON file ``path``; ``ValueError`` naming the file on an
     unknown key or an invalid value."""
     data = read_json_fields(path, Config, "config keys")
-    data["model_overrides"] = tuple(tuple(x) for x in data.get("model_overrides", ()))
+    over = data.get("model_overrides", ())
+    if not isinstance(over, (list, tuple)) or not all(
+            isinstance(x, (list, tuple)) and len(x) == 2 and isinstance(x[0], str) for x in over):
+        raise ValueError(f"{path}: model_overrides: expected a list of [name, value] pairs, "
+                         f"got {over!r}")
+    data["model_overrides"] = tuple(tuple(x) for x in over)
     try:
         return Config(**data)
     except (TypeError, ValueError) as e:

@@ -52,8 +52,12 @@ def validate(frame: Frame, factor: int | None = None, time_major: bool = False,
     lead_shape = color.shape[:lead]
     if frame.jitter.shape != lead_shape + (2,):
         raise ValueError(f"jitter: expected shape {lead_shape + (2,)}, got {frame.jitter.shape}")
+    if not jnp.issubdtype(frame.jitter.dtype, jnp.floating):
+        raise ValueError(f"jitter: expected a floating dtype, got {frame.jitter.dtype}")
     if frame.reset is not None and frame.reset.shape != lead_shape:
         raise ValueError(f"reset: expected shape {lead_shape}, got {frame.reset.shape}")
+    if frame.reset is not None and frame.reset.dtype != jnp.bool_:
+        raise ValueError(f"reset: expected bool, got {frame.reset.dtype}")
     if frame.exposure is not None:
         if frame.exposure.shape != lead_shape:
             raise ValueError(f"exposure: expected shape {lead_shape} (one value per frame), "
@@ -74,8 +78,9 @@ def validate(frame: Frame, factor: int | None = None, time_major: bool = False,
         if frame.exposure is not None:
             e = np.asarray(frame.exposure)
             if not np.all(np.isfinite(e) & (e > 0)):
+                bad = int(np.size(e) - np.count_nonzero(np.isfinite(e) & (e > 0)))
                 raise ValueError("exposure: expected finite values > 0 (the multiplier that "
-                                 f"pre-exposes HDR colour), got min {np.nanmin(e)}")
+                                 f"pre-exposes HDR colour); {bad} are not")
         jit = np.asarray(frame.jitter)
         if np.any((jit < 0) | (jit >= 1)):
             raise ValueError("jitter: expected values in [0, 1) (offset inside the LR pixel); "

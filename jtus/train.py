@@ -369,4 +369,5 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from jtus.cli import run
+    run(main)

@@ -87,3 +87,112 @@ def test_train_killed_resumes_to_the_uninterrupted_parameters(tmp_path, k):
     for a, b in zip(jax.tree_util.tree_leaves(full), jax.tree_util.tree_leaves(resumed)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
+
+
+
+def _signal(proc, sig, ready, delay, timeout=300):
+    """Send ``sig`` ``delay`` seconds after ``ready()`` first holds, unless ``proc`` has
+    exited by then; returns whether it was still running when signalled."""
+    deadline = time.time() + timeout
+    while not ready() and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.01)
+    end = time.time() + delay
+    while time.time() < end and proc.poll() is None:
+        time.sleep(0.01)
+    alive = proc.poll() is None
+    if alive:
+        proc.send_signal(sig)
+    proc.wait(120)
+    return alive
+
+
+def _temp_files(folder):
+    return [f for f in os.listdir(folder) if f.endswith(".tmp") or f.startswith(".")]
+
+
+@pytest.mark.parametrize("k", range(KILLS))
+def test_generate_terminated_removes_its_temporary_file(tmp_path, k):
+    out = tmp_path / "d.h5"
+    dataset.generate("tiny", out, progress=False)
+    before = _digest(out)
+    delay = np.random.default_rng([3, k]).uniform(0.0, 6.0)
+    proc = _start(["jtus.data", "generate", "--preset", "diverse-tiny", "--out",
+                   str(tmp_path / "new.h5"), "--quiet"])
+    assert _signal(proc, signal.SIGTERM,
+                   lambda: any(f.endswith(".tmp") for f in os.listdir(tmp_path)), delay)
+    assert proc.returncode == 128 + signal.SIGTERM
+    assert _digest(out) == before and not _temp_files(tmp_path)
+    assert not (tmp_path / "new.h5").exists()
+
+
+def _exr_frames(folder, n, size, seed):
+    from jtus.data import exr
+    folder.mkdir()
+    rng = np.random.default_rng(seed)
+    for t in range(n):
+        ch = {c: rng.uniform(0, 1, size) for c in "RGB"}
+        if size[0] < 64:  # the LR inputs
+            ch.update({"Z": rng.uniform(0.1, 0.9, size), "motion.X": np.zeros(size),
+                       "motion.Y": np.zeros(size)})
+        exr.write_exr(folder / f"f{t:03d}.exr", ch)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM], ids=["KILL", "TERM"])
+@pytest.mark.parametrize("k", range(KILLS))
+def test_import_exr_interrupted_leaves_the_previous_dataset(tmp_path, k, sig):
+    """Re-import (``--force``) over an existing dataset, interrupted at a random moment
+    of the run: the file is the previous import or the new one, whole."""
+    for name, seed in (("lr", 0), ("hr", 1), ("lr2", 2), ("hr2", 3)):
+        _exr_frames(tmp_path / name, 24, (32, 32) if name.startswith("lr") else (128, 128),
+                    seed)
+    out, new = tmp_path / "d.h5", tmp_path / "new.h5"
+    args = ["jtus.data", "import-exr", "--factor", "4"]
+    t0 = time.time()
+    assert subprocess.run([sys.executable, "-m"] + args + [
+        "--input", str(tmp_path / "lr2"), "--target", str(tmp_path / "hr2"), "--out", str(new)],
+        cwd=ROOT, capture_output=True).returncode == 0
+    duration = time.time() - t0
+    assert subprocess.run([sys.executable, "-m"] + args + [
+        "--input", str(tmp_path / "lr"), "--target", str(tmp_path / "hr"), "--out", str(out)],
+        cwd=ROOT, capture_output=True).returncode == 0
+    before, after = _digest(out), _digest(new)
+    assert before != after
+    delay = np.random.default_rng([4, k, int(sig)]).uniform(0.0, duration)
+    proc = _start(args + ["--input", str(tmp_path / "lr2"), "--target", str(tmp_path / "hr2"),
+                          "--out", str(out), "--force"])
+    _signal(proc, sig, lambda: True, delay)
+    assert _digest(out) in (before, after)
+    if sig == signal.SIGTERM:
+        assert not _temp_files(tmp_path)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM], ids=["KILL", "TERM"])
+@pytest.mark.parametrize("k", range(KILLS))
+def test_upsample_interrupted_leaves_only_whole_frames(tmp_path, k, sig, tiny_data):
+    """``upsample --force`` over an earlier run's frames, interrupted: every frame file
+    is the earlier version or the new one, whole (frames are written one by one,
+    atomically)."""
+    out = tmp_path / "frames"
+    common = ["jtus.upsample", "--input", tiny_data, "--factor", "4", "--format", "exr",
+              "--out", str(out)]
+    first = subprocess.run([sys.executable, "-m"] + common + ["--model", "jau"], cwd=ROOT,
+                           capture_output=True)
+    assert first.returncode == 0, first.stderr
+    old = {f: _digest(out / f) for f in os.listdir(out)}
+    ref = tmp_path / "ref"
+    t0 = time.time()
+    assert subprocess.run([sys.executable, "-m"] + common[:-1] + [str(ref), "--model", "tus"],
+                          cwd=ROOT, capture_output=True).returncode == 0
+    duration = time.time() - t0
+    new = {f: _digest(ref / f) for f in os.listdir(ref)}
+    # TUS's first frame is the jitter-aligned input, as JAU's: every later one differs
+    assert set(new) == set(old) and sum(new[f] != old[f] for f in new) == len(new) - 1
+    delay = np.random.default_rng([5, k, int(sig)]).uniform(0.0, duration)
+    proc = _start(common + ["--model", "tus", "--force"])
+    _signal(proc, sig, lambda: True, delay)
+    got = {f: _digest(out / f) for f in os.listdir(out) if not f.startswith(".")
+           and not f.endswith(".tmp")}
+    assert set(got) == set(old)
+    assert all(got[f] in (old[f], new[f]) for f in got)
+    if sig == signal.SIGTERM:
+        assert not _temp_files(out)

@@ -285,4 +285,5 @@ def _fps(preset_name, frames):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from jtus.cli import run
+    run(main)

@@ -1,0 +1,213 @@
+"""Property-based bad input (issue 15): random wrong frames, import sidecars, run
+configs, dataset files and command lines. Every case ends in a correct result or a
+clean error naming the field, with a non-zero exit for the CLIs; never a traceback
+(any other exception fails the test), never a changed file on failure.
+
+Examples per property are listed in ``docs/reliability.md``; ``JTUS_HYPOTHESIS_SCALE=10``
+multiplies them for a long run.
+"""
+
+import hashlib
+import json
+import os
+import re
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from jtus import config as run_config
+from jtus.data import __main__ as data_cli
+from jtus.data import exr
+from jtus.data.dataset import Dataset
+from jtus.frame import Frame, validate
+
+SCALE = int(os.environ.get("JTUS_HYPOTHESIS_SCALE", "1"))
+FIELDS = ("color", "depth", "motion", "jitter", "reset", "exposure")
+
+
+def _examples(n):
+    return settings(max_examples=n * SCALE, deadline=None,
+                    suppress_health_check=[HealthCheck.function_scoped_fixture,
+                                           HealthCheck.too_slow])
+
+
+# ---------------------------------------------------------------- frames
+
+_DTYPES = st.sampled_from([np.float32, np.float64, np.int32, np.bool_])
+_SPECIAL = st.sampled_from([None, "nan", "inf", "neg", "big"])
+
+
+@st.composite
+def frames(draw):
+    """A frame whose every field may be off in shape, dtype or values."""
+    b, h, w = draw(st.integers(1, 2)), draw(st.integers(1, 3)), draw(st.integers(1, 3))
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    what = {}
+
+    def field(name, shape):
+        if draw(st.integers(0, 5)) == 0:  # a wrong shape
+            shape = tuple(max(1, s + draw(st.integers(-1, 1))) for s in shape) + (
+                (1,) if draw(st.booleans()) else ())
+        dtype = draw(_DTYPES) if draw(st.integers(0, 5)) == 0 else np.float32
+        x = rng.uniform(0.0, 0.99, shape)
+        special = draw(_SPECIAL) if draw(st.integers(0, 3)) == 0 else None
+        if special and x.size:
+            i = tuple(int(rng.integers(s)) for s in shape)
+            x[i] = {"nan": np.nan, "inf": np.inf, "neg": -0.5, "big": 7.0}[special]
+        what[name] = (shape, dtype, special)
+        return x.astype(dtype)
+
+    fr = Frame(field("color", (b, h, w, 3)), field("depth", (b, h, w, 1)),
+               field("motion", (b, h, w, 2)), field("jitter", (b, 2)),
+               np.zeros(b, bool) if draw(st.booleans()) else None,
+               field("exposure", (b,)) if draw(st.booleans()) else None)
+    return fr, what
+
+
+def _valid(fr, what):
+    """The oracle: what validate must accept."""
+    b, h, w = fr.color.shape[:3] if fr.color.ndim == 4 else (None, None, None)
+    want = {"color": (b, h, w, 3), "depth": (b, h, w, 1), "motion": (b, h, w, 2),
+            "jitter": (b, 2), "exposure": (b,)}
+    for name, (shape, dtype, special) in what.items():
+        if fr.color.ndim != 4 or shape != want[name] or not np.issubdtype(dtype, np.floating):
+            return False
+        if special in ("nan", "inf"):
+            return False
+        if name == "jitter" and special in ("neg", "big"):
+            return False
+        if name == "exposure" and special == "neg":
+            return False
+    return True
+
+
+@_examples(150)
+@given(frames())
+def test_validate_accepts_exactly_the_valid_frames(case):
+    fr, what = case
+    try:
+        validate(fr)
+        ok = True
+    except ValueError as e:
+        ok = False
+        assert re.match(r"(color|depth|motion|jitter|reset|exposure): ", str(e)), str(e)
+    assert ok == _valid(fr, what), (what, ok)
+
+
+# ---------------------------------------------------------------- sidecars and configs
+
+_JSON = st.recursive(st.none() | st.booleans() | st.integers(-5, 5) | st.floats(
+    allow_nan=False, allow_infinity=False, width=32) | st.text(max_size=6),
+    lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=4), inner,
+                                                                max_size=2), max_leaves=4)
+
+
+def _field_dicts(cls):
+    import dataclasses
+    names = [f.name for f in dataclasses.fields(cls)]
+    return st.dictionaries(st.sampled_from(names + ["bogus", "Color"]), _JSON, max_size=4)
+
+
+@_examples(150)
+@given(data=_field_dicts(exr.ImportSpec))
+def test_import_sidecar_is_a_spec_or_a_named_error(tmp_path_factory, data):
+    path = tmp_path_factory.mktemp("s") / "spec.json"
+    path.write_text(json.dumps(data))
+    try:
+        exr.ImportSpec.from_json(str(path))
+    except ValueError as e:
+        assert str(path) in str(e) or re.match(r"\w+", str(e)), str(e)
+        named = [k for k in list(data) + ["keys"] if k in str(e)]
+        assert named, (data, str(e))
+
+
+@_examples(100)
+@given(data=_field_dicts(run_config.Config))
+def test_run_config_file_is_a_config_or_a_named_error(tmp_path_factory, data):
+    path = tmp_path_factory.mktemp("c") / "config.json"
+    path.write_text(json.dumps(data))
+    try:
+        run_config.from_json(str(path))
+    except ValueError as e:
+        assert str(path) in str(e), str(e)
+
+
+# ---------------------------------------------------------------- dataset files
+
+
+@_examples(40)
+@given(content=st.one_of(st.binary(max_size=64), st.just(b"\x89HDF\r\n\x1a\n" + b"\0" * 32)),
+       attrs=st.dictionaries(st.sampled_from(["format", "version", "factors", "size"]),
+                             st.one_of(st.integers(-2, 3), st.text(st.characters(
+                                 min_codepoint=32, max_codepoint=126), max_size=5)),
+                             max_size=4))
+def test_dataset_reader_refuses_what_is_not_a_dataset(tmp_path_factory, content, attrs):
+    import h5py
+    d = tmp_path_factory.mktemp("d")
+    raw, h5 = d / "raw.h5", d / "attrs.h5"
+    raw.write_bytes(content)
+    with h5py.File(h5, "w") as fh:
+        fh.attrs.update(attrs)
+    for path in (raw, h5):
+        with pytest.raises(ValueError, match=re.escape(str(path))):
+            Dataset(path).close()
+
+
+# ---------------------------------------------------------------- command lines
+
+
+def _digest(path):
+    return hashlib.sha256(open(path, "rb").read()).hexdigest()
+
+
+@pytest.fixture(scope="module")
+def exr_inputs(tmp_path_factory):
+    d = tmp_path_factory.mktemp("exr")
+    lr, hr = d / "lr", d / "hr"
+    lr.mkdir()
+    hr.mkdir()
+    rng = np.random.default_rng(0)
+    for t in range(2):
+        exr.write_exr(lr / f"f{t}.exr", {"R": rng.random((4, 4)), "G": rng.random((4, 4)),
+                                         "B": rng.random((4, 4)), "Z": rng.random((4, 4)),
+                                         "motion.X": np.zeros((4, 4)),
+                                         "motion.Y": np.zeros((4, 4))})
+        exr.write_exr(hr / f"f{t}.exr", {c: rng.random((16, 16)) for c in "RGB"})
+    out = d / "existing.h5"
+    assert data_cli.main(["import-exr", "--input", str(lr), "--target", str(hr), "--factor",
+                          "4", "--out", str(out)]) == 0
+    return {"lr": str(lr), "hr": str(hr), "out": str(out), "missing": str(d / "nope"),
+            "file": str(out), "dir": str(d)}
+
+
+_WORDS = ["lr", "hr", "missing", "file", "dir"]
+
+
+@_examples(80)
+@given(inp=st.sampled_from(_WORDS), tgt=st.sampled_from(_WORDS),
+       factor=st.sampled_from(["4", "2", "3", "0", "-4", "x", "4.0"]),
+       split=st.sampled_from(["test", "train", "bogus", ""]),
+       name=st.sampled_from(["v", "a/b", "", "..", "ok_1"]),
+       extra=st.lists(st.sampled_from(["--depth-kind", "reversed", "--near", "-1", "--far",
+                                       "nan", "--motion", "a", "--color", "R,G",
+                                       "--motion-units", "furlongs"]), max_size=3))
+def test_import_exr_cli_succeeds_or_fails_cleanly_without_touching_the_file(
+        exr_inputs, capsys, inp, tgt, factor, split, name, extra):
+    out = exr_inputs["out"]
+    before = _digest(out)
+    argv = ["import-exr", "--input", exr_inputs[inp], "--target", exr_inputs[tgt],
+            "--factor", factor, "--out", out, "--split", split, "--name", name] + extra
+    try:
+        rc = data_cli.main(argv)
+    except SystemExit as e:  # argparse: usage line and exit status 2
+        rc = e.code
+    err = capsys.readouterr().err
+    assert rc in (0, 2), (argv, rc)
+    if rc:
+        assert err.strip(), argv
+        assert "Traceback" not in err
+    # without --force an existing --out is never replaced, valid arguments or not
+    assert _digest(out) == before
+    assert rc == 2 and ("exists" in err or "error" in err or "usage" in err)
