@@ -66,19 +66,26 @@ def test_generate_killed_leaves_the_previous_dataset(tmp_path, k):
         assert ds.videos("test")
 
 
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM], ids=["KILL", "TERM"])
 @pytest.mark.parametrize("k", range(KILLS))
-def test_train_killed_resumes_to_the_uninterrupted_parameters(tmp_path, k):
+def test_train_killed_resumes_to_the_uninterrupted_parameters(tmp_path, k, sig):
     data = tmp_path / "tiny.h5"
     dataset.generate("tiny", data, progress=False)
     config = dataclasses.replace(PRESETS["tiny"], dataset=str(data), epochs=8)
     full, _ = train.train_and_evaluate(config, tmp_path / "full", progress=False)
     work = tmp_path / "cut"
-    # after its first checkpoint the run has 7 epochs left, about 0.7 s each here
-    delay = np.random.default_rng([2, k]).uniform(0.0, 1.5)
+        # the first epoch compiles; the 7 after it take about 0.3 s each here
+    delay = np.random.default_rng([2, k, int(sig)]).uniform(0.0, 0.6)
     proc = _start(["jtus.train", "--preset", "tiny", "--dataset", str(data), "--epochs", "8",
                    "--workdir", str(work), "--quiet", "--no-eval"])
     ckpt = work / "checkpoint.msgpack"
-    assert _kill_when(proc, ckpt.exists, delay), "training finished before the kill"
+    assert _signal(proc, sig, ckpt.exists, delay), "training finished before the signal"
+    if sig == signal.SIGTERM:
+        assert not _temp_files(work)
+        # 143; or 0 when the signal came as the finished run was exiting
+        assert proc.returncode == 128 + signal.SIGTERM or (
+            proc.returncode == 0 and len(checkpoint.restore_train_state(
+                str(work), train.create_train_state(full, recipe.optimizer_for(config)))[2]) == 8)
     if ckpt.exists():  # every checkpoint on disk is whole: it restores
         checkpoint.restore_train_state(
             str(work), train.create_train_state(full, recipe.optimizer_for(config)))
