@@ -1,20 +1,44 @@
 #!/bin/bash
-# Trains the comparison systems (NSRR, NSRR-fast, KPN, MLP) on the default data at 4x
-# and 2x, with the step budgets that fit a 2-core CPU (about 1.5 hours in all; see
-# docs/comparison.md for the measured time). The checkpoints land in runs/<model>-x<f>/
-# and their parameters are exported to experiments/weights/<model>-x<f>.msgpack (with
-# the config and the per-epoch log), which the README's evaluation command reads:
-#   python -m jtus.evaluate --models jau tus shipped 'nsrr=experiments/weights/nsrr-x{f}.msgpack' ...
-# Pass --perceptual-weights FILE through EXTRA to add NSRR's VGG-16 term.
+# Trains the comparison systems (MLP upscaler, KPN, NSRR-fast, NSRR) on the `diverse`
+# data at 4x and 2x, each with its own paper's loss, with the recipe DLCTUS trains with
+# (warm-up then cosine decay, gradient clipping, validation on held-out seeds every
+# epoch; docs/weights.md), until the schedule ends. Rerunning the script continues every
+# unfinished run from its checkpoint (--resume), so it spans as many sessions as needed;
+# a finished run is skipped. Crops and sequences are smaller than DLCTUS's (128, 16):
+# NSRR costs 33x DLCTUS's FLOPs per pixel, KPN 4.4x (python -m jtus.cost).
+#
+#   bash experiments/train_comparison.sh                 # everything, in order
+#   ONLY="mlp kpn" FACTORS=4 bash experiments/train_comparison.sh
+#
+# Runs land in runs/<model>-diverse-x<f>/; when a run has finished its schedule its
+# parameters are exported to experiments/weights/<model>-x<f>.msgpack (with the config
+# and the per-epoch log), which the README's evaluation command reads. Pass
+# --perceptual-weights FILE through EXTRA to add NSRR's VGG-16 term.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-common="--seq-len 6 --loss-frames 2 --crop 64 --batch 4 --no-eval --quiet ${EXTRA:-}"
-for f in ${FACTORS:-4 2}; do
-  python -m jtus.train --model mlp --loss l1 --factor $f --epochs 8 --steps-per-epoch 100 $common --workdir runs/mlp-x$f
-  python -m jtus.train --model kpn --loss kpn --factor $f --epochs 4 --steps-per-epoch 50 $common --workdir runs/kpn-x$f
-  python -m jtus.train --model nsrr-fast --loss ssim --factor $f --epochs 3 --steps-per-epoch 40 $common --workdir runs/nsrr-fast-x$f
-  python -m jtus.train --model nsrr --loss ssim --factor $f --epochs 3 --steps-per-epoch 30 $common --workdir runs/nsrr-x$f
-  for m in mlp kpn nsrr-fast nsrr; do
-    python -c "from jtus import train; train.export_params('runs/$m-x$f', 'experiments/weights/$m-x$f')"
+common="--preset diverse --no-eval --quiet --val-videos 4 ${EXTRA:-}"
+declare -A args=(
+  [mlp]="--model mlp --loss l1 --crop 64 --seq-len 2 --k1 2 --k2 2 --loss-frames 2 --lr 1e-3 --epochs 30 --steps-per-epoch 200"
+  [kpn]="--model kpn --loss kpn --crop 64 --seq-len 8 --k1 8 --k2 8 --loss-frames 8 --lr 1e-3 --epochs 40 --steps-per-epoch 100"
+  [nsrr-fast]="--model nsrr-fast --loss ssim --crop 64 --seq-len 8 --k1 8 --k2 8 --loss-frames 8 --lr 3e-4 --epochs 40 --steps-per-epoch 100"
+  [nsrr]="--model nsrr --loss ssim --crop 64 --seq-len 8 --k1 8 --k2 8 --loss-frames 8 --lr 3e-4 --epochs 40 --steps-per-epoch 100"
+)
+for m in ${ONLY:-mlp kpn nsrr-fast nsrr}; do
+  for f in ${FACTORS:-4 2}; do
+    wd=runs/$m-diverse-x$f
+    resume=""
+    [ -f "$wd/checkpoint.msgpack" ] && resume="--resume"
+    # shellcheck disable=SC2086
+    python -m jtus.train $common ${args[$m]} --factor "$f" --workdir "$wd" $resume
+    python - "$wd" "$m" "$f" <<'EOF'
+import json, sys
+from jtus import recipe
+wd, m, f = sys.argv[1:]
+cfg = json.load(open(f"{wd}/config.json"))
+hist = json.load(open(f"{wd}/metrics.json"))
+if hist and hist[-1]["epoch"] >= cfg["epochs"]:
+    recipe.export_params(wd, f"experiments/weights/{m}-x{f}")
+    print(f"exported {wd} -> experiments/weights/{m}-x{f}.msgpack")
+EOF
   done
 done
