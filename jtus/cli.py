@@ -11,7 +11,11 @@ class Terminated(SystemExit):
     """A SIGTERM, raised where the program was so that it unwinds like an interrupt."""
 
 
+_TERMINATED = []
+
+
 def _exit_on_term(signum, frame):
+    _TERMINATED.append(signum)
     raise Terminated(128 + signum)
 
 
@@ -32,7 +36,12 @@ def run(main):
     try:
         code = main()
     except Terminated as e:
+        code = e.code
+    if _TERMINATED:
+        # also when the exception was swallowed on its way (raised inside a ``__del__``
+        # or a C callback, Python only prints it): the work then finished, its files
+        # are complete, and the exit status still says it was terminated
         sys.stdout.flush()
         sys.stderr.flush()
-        os._exit(e.code)
+        os._exit(128 + _TERMINATED[0])
     sys.exit(code)
