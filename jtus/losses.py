@@ -116,7 +116,7 @@ def displayed(fn):
     tone-mapped pre-exposed colour in [0, 1), so highlights do not dominate; LDR frames
     (no exposure) compare the images themselves. Every loss and metric goes through it."""
     def on_display(out, target, prev_out, prev_target, has_prev, frame, *rest):
-        e = frame.exposure
+        e = None if frame is None else frame.exposure  # spatial losses need no frame
         if e is None:
             return fn(out, target, prev_out, prev_target, has_prev, frame, *rest)
         d = lambda x: sampling.display(x, e)  # noqa: E731
