@@ -1,7 +1,9 @@
 """What replicate ('edge') padding costs DLCTUS's residual trunk on XLA:CPU.
 
     python experiments/conv_padding.py            # 1080p at 4x: 270x480 maps, 32 channels
-    python experiments/conv_padding.py --size 32 32 --batch 4   # the training crop's maps
+    python experiments/conv_padding.py --size 32 32 --batch 4 --name conv_padding_crop
+
+Writes ``docs/results/<name>/result.{md,json}``.
 
 Times the trunk (four residual blocks of two 3x3 32->32 convolutions) jitted, warm,
 median of repeats, with four ways of padding: zero padding (the SAME convolution
@@ -14,11 +16,16 @@ checked equal first.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from common import write  # noqa: E402
 
 from jtus import bench
 from jtus.models import layers
@@ -48,7 +55,9 @@ def conv_border(x, kernel, bias):
 
 VARIANTS = {
     "zero padding (SAME only; lower bound)": lambda x, k, b: layers.conv(x, k, b),
-    "edge pad + SAME + crop (jtus)": layers.conv_edge,
+    "edge pad + SAME + crop (jtus: pad_edge, one concatenation per axis)": layers.conv_edge,
+    "jnp.pad(mode='edge') + SAME + crop (jtus before the ONNX export)":
+        lambda x, k, b: layers.conv(_pad(x), k, b)[:, 1:-1, 1:-1],
     "edge pad + VALID": lambda x, k, b: layers.conv(_pad(x), k, b, padding="VALID"),
     "zero padding + border-ring correction": conv_border,
 }
@@ -60,6 +69,7 @@ def main(argv=None):
     p.add_argument("--size", type=int, nargs=2, default=(270, 480), metavar=("H", "W"))
     p.add_argument("--batch", type=int, default=1)
     p.add_argument("--repeats", type=int, default=7)
+    p.add_argument("--name", default="conv_padding", help="docs/results/<name>/")
     args = p.parse_args(argv)
     r = np.random.default_rng(0)
     x = jnp.asarray(r.normal(size=(args.batch, *args.size, 32)), jnp.float32)
@@ -70,10 +80,7 @@ def main(argv=None):
         err = float(jnp.abs(VARIANTS[name](x, k, b) - ref).max())
         if err > 1e-4:
             raise AssertionError(f"{name}: differs from conv_edge by {err}")
-    hw = bench.hardware()
-    print(f"Trunk of 8 convolutions at {args.batch}x{args.size[0]}x{args.size[1]}x32 "
-          f"({hw['cpu']}, {hw['cores']} cores, JAX {hw['jax']}).\n")
-    print("| padding | ms | vs zero padding |\n| --- | --- | --- |")
+    rows, data = [], []
     base = None
     for name, conv in VARIANTS.items():
         def trunk(x, conv=conv):
@@ -84,7 +91,12 @@ def main(argv=None):
         f = jax.jit(trunk)
         ms = 1e3 * bench.timeit(lambda: f(x).block_until_ready(), args.repeats)
         base = base or ms
-        print(f"| {name} | {ms:.1f} | {ms / base:.2f}x |")
+        rows.append(f"| {name} | {ms:.1f} | {ms / base:.2f}x |")
+        data.append({"padding": name, "ms": ms, "vs_zero": ms / base})
+    table = (f"Trunk of 8 convolutions at {args.batch}x{args.size[0]}x{args.size[1]}x32, "
+             f"median of {args.repeats}.\n\n| padding | ms | vs zero padding |\n"
+             "| --- | --- | --- |\n" + "\n".join(rows))
+    write(args.name, table, {"size": list(args.size), "batch": args.batch, "rows": data})
     return 0
 
 
