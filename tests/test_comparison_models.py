@@ -182,3 +182,41 @@ def test_every_registered_model_has_a_cost_and_its_hooks():
         assert spec.loss in losses.NAMES, name
     assert models.spec("mlp").accept is mlp.acceptance
     assert models.spec("kpn").loss == "kpn"
+
+
+@pytest.mark.parametrize("factor", [4, 2])
+def test_kpn_matches_an_independent_torch_kpn(factor):
+    """jtus's KPN against tests/torch_kpn.py (its own parameter layout, Catmull-Rom,
+    input preparation and colour mix, from Herveau et al. and docs/comparison.md) over
+    6 frames with motion, a camera cut in one element and the weight set of each
+    frame's jitter phase."""
+    import torch
+
+    from jtus import models, rollout
+    from tests import torch_kpn
+
+    frames, _ = seqdata.sequence(T=6, B=2, h=24 // factor, w=32 // factor, factor=factor,
+                                 seed=11, max_motion=1.5, reset_at=(3, 1))
+    frames.reset[0] = True
+    model = models.build("kpn", factor)
+    phases = np.asarray(model.config.phases(), np.float32)
+    torch.manual_seed(0)
+    net = torch_kpn.KPN(len(phases))
+    params = jax.tree_util.tree_map(jnp.asarray, torch_kpn.to_jtus(net))
+    jf = seqdata.to_jax(frames)
+    outs, final = jax.jit(lambda p, s, f: rollout.outputs(model.step, p, s, f))(
+        params, rollout.first_state(model, jf), jf)
+    nchw = lambda x: torch.from_numpy(np.ascontiguousarray(np.moveaxis(x, -1, 1)))  # noqa: E731
+    fb, ref = None, []
+    with torch.no_grad():
+        for t in range(6):
+            out, fb = torch_kpn.step(net, fb, nchw(frames.color[t]), nchw(frames.depth[t]),
+                                     nchw(frames.motion[t]), torch.from_numpy(frames.jitter[t]),
+                                     torch.from_numpy(frames.reset[t]), torch.from_numpy(phases),
+                                     factor)
+            ref.append(out.numpy().transpose(0, 2, 3, 1))
+    # float32; measured max 3.0e-7 (both factors)
+    np.testing.assert_allclose(np.asarray(outs), np.stack(ref), rtol=0, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(final.history), fb.numpy().transpose(0, 2, 3, 1),
+                               rtol=0, atol=1e-5)
+    assert np.abs(np.asarray(outs)).max() > 0.1  # not a comparison of zeros
