@@ -451,5 +451,5 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    from jtus.cli import run
-    run(main)
+    from jtus import cli  # not ``from jtus.cli import run``: a module may have its own run
+    cli.run(main)

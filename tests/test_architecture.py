@@ -166,3 +166,41 @@ def test_private_finder_finds_a_use(tmp_path):
 def test_package_never_imports_tests():
     bad = [n for n, p in MODULES.items() if any(t.startswith("tests") for t in _imports(n, p)[0])]
     assert not bad, bad
+
+
+def _main_block_rebinds(path):
+    """Module-level names that a file's ``if __name__ == "__main__":`` block binds
+    again (an import or assignment there replaces the module's own name when the file
+    runs as ``python -m``, and only then)."""
+    tree = ast.parse(open(path).read(), path)
+    defined = {n.name for n in tree.body if isinstance(n, (ast.FunctionDef, ast.ClassDef))}
+    for n in tree.body:
+        if isinstance(n, (ast.Import, ast.ImportFrom)):
+            defined |= {(a.asname or a.name).split(".")[0] for a in n.names}
+        elif isinstance(n, ast.Assign):
+            defined |= {t.id for t in n.targets if isinstance(t, ast.Name)}
+    bad = set()
+    for n in tree.body:
+        if (isinstance(n, ast.If) and isinstance(n.test, ast.Compare)
+                and getattr(n.test.left, "id", None) == "__name__"):
+            for sub in ast.walk(n):
+                if isinstance(sub, (ast.Import, ast.ImportFrom)):
+                    bad |= {(a.asname or a.name).split(".")[0] for a in sub.names} & defined
+                elif isinstance(sub, ast.Assign):
+                    bad |= {t.id for t in sub.targets if isinstance(t, ast.Name)} & defined
+    return bad
+
+
+def test_main_blocks_rebind_no_module_name():
+    """``from jtus.cli import run`` in ``jtus/evaluate.py``'s main block replaced its own
+    ``run`` when run as ``python -m jtus.evaluate`` (in-process tests call ``main`` and
+    missed it)."""
+    bad = {name: b for name, path in MODULES.items() if (b := _main_block_rebinds(path))}
+    assert not bad, bad
+
+
+def test_main_block_finder_finds_a_rebinding(tmp_path):
+    p = tmp_path / "m.py"
+    p.write_text("def run():\n    pass\n\n\nif __name__ == '__main__':\n"
+                 "    from jtus.cli import run\n    run(main)\n")
+    assert _main_block_rebinds(str(p)) == {"run"}
