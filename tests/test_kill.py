@@ -35,18 +35,24 @@ def _start(args):
                             stderr=subprocess.DEVNULL)
 
 
-def _kill_when(proc, ready, delay, timeout=300):
-    """SIGKILL ``proc`` ``delay`` seconds after ``ready()`` first holds (or when it has
-    exited by itself); returns whether it was still running when killed."""
+def _signal(proc, sig, ready, delay, timeout=300):
+    """Send ``sig`` ``delay`` seconds after ``ready()`` first holds, unless ``proc`` has
+    exited by then; returns whether it was still running when signalled."""
     deadline = time.time() + timeout
     while not ready() and proc.poll() is None and time.time() < deadline:
-        time.sleep(0.02)
-    time.sleep(delay)
+        time.sleep(0.01)
+    end = time.time() + delay
+    while time.time() < end and proc.poll() is None:
+        time.sleep(0.01)
     alive = proc.poll() is None
     if alive:
-        proc.send_signal(signal.SIGKILL)
-    proc.wait(60)
+        proc.send_signal(sig)
+    proc.wait(120)
     return alive
+
+
+def _temp_files(folder):
+    return [f for f in os.listdir(folder) if f.endswith(".tmp") or f.startswith(".")]
 
 
 @pytest.mark.parametrize("k", range(KILLS))
@@ -58,8 +64,9 @@ def test_generate_killed_leaves_the_previous_dataset(tmp_path, k):
     delay = np.random.default_rng([1, k]).uniform(0.0, 6.0)
     proc = _start(["jtus.data", "generate", "--preset", "diverse-tiny", "--out", str(out),
                    "--quiet"])
-    assert _kill_when(proc, lambda: any(f.endswith(".tmp") for f in os.listdir(tmp_path)),
-                      delay), "generate finished before the kill"
+    assert _signal(proc, signal.SIGKILL,
+                   lambda: any(f.endswith(".tmp") for f in os.listdir(tmp_path)),
+                   delay), "generate finished before the kill"
     # the previous version, whole (a run that finished first wrote the same bytes)
     assert _digest(out) == before
     with dataset.Dataset(out) as ds:
@@ -95,26 +102,6 @@ def test_train_killed_resumes_to_the_uninterrupted_parameters(tmp_path, k, sig):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
-
-
-def _signal(proc, sig, ready, delay, timeout=300):
-    """Send ``sig`` ``delay`` seconds after ``ready()`` first holds, unless ``proc`` has
-    exited by then; returns whether it was still running when signalled."""
-    deadline = time.time() + timeout
-    while not ready() and proc.poll() is None and time.time() < deadline:
-        time.sleep(0.01)
-    end = time.time() + delay
-    while time.time() < end and proc.poll() is None:
-        time.sleep(0.01)
-    alive = proc.poll() is None
-    if alive:
-        proc.send_signal(sig)
-    proc.wait(120)
-    return alive
-
-
-def _temp_files(folder):
-    return [f for f in os.listdir(folder) if f.endswith(".tmp") or f.startswith(".")]
 
 
 @pytest.mark.parametrize("k", range(KILLS))
