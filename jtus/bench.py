@@ -162,7 +162,7 @@ def bench_infer(name, factor, size, repeats, dtype="float32", against=None, **ov
 
 
 def train_workload(factor, crop, batch, seq, loss_frames, remat=False, unroll=1,
-                   conv_backward="custom", warp="bicubic"):
+                   conv_backward="custom", warp="bicubic", hoist=True):
     """One DLCTUS BPTT training step (L1 loss, Adam) on random data.
     Returns ``(run, hlo, model)``: ``run()`` takes one step and blocks; ``hlo()`` is
     the compiled module's text (for profiles)."""
@@ -175,7 +175,7 @@ def train_workload(factor, crop, batch, seq, loss_frames, remat=False, unroll=1,
     opt = optax.adam(1e-4)
     ts = [train.create_train_state(model.init(jax.random.PRNGKey(0)), opt)]
     step = train.make_train_step(model, losses.make("l1", factor), opt, loss_frames=loss_frames,
-                                 remat=remat, unroll=unroll)
+                                 remat=remat, unroll=unroll, hoist=hoist)
     h = crop // factor
     frames = [_inputs(h, h, batch, seed=t) for t in range(seq)]
     frames = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *frames)
@@ -201,12 +201,12 @@ def train_workload(factor, crop, batch, seq, loss_frames, remat=False, unroll=1,
 
 
 def bench_train(factor, crop, batch, seq, loss_frames, repeats, remat=False, unroll=1,
-                conv_backward="custom", warp="bicubic", against=None):
+                conv_backward="custom", warp="bicubic", against=None, hoist=True):
     """The training-step timing record; ``against`` as in ``bench_infer``."""
     from jtus import cost
 
     run, _, model = train_workload(factor, crop, batch, seq, loss_frames, remat, unroll,
-                                   conv_backward, warp)
+                                   conv_backward, warp, hoist)
     # a training step runs the network forward and, for the frames that reach the loss,
     # its two backward products (input and kernel gradients), each as costly as the
     # forward: at least 3x the forward FLOPs of every frame (BPTT reaches all of them)
@@ -214,7 +214,7 @@ def bench_train(factor, crop, batch, seq, loss_frames, repeats, remat=False, unr
     rec = {"factor": factor, "crop": crop, "batch": batch, "seq": seq, "loss_frames": loss_frames,
            "gflop_per_step": 3 * fwd / 1e9,
            "remat": remat, "unroll": bool(unroll is True), "conv_backward": conv_backward,
-           "warp": warp}
+           "warp": warp, "hoist": hoist}
     try:  # what XLA plans for the step: temporaries plus arguments and outputs
         mem = run.compiled().memory_analysis()
         rec["peak_mib"] = (mem.temp_size_in_bytes + mem.argument_size_in_bytes
@@ -250,7 +250,8 @@ def _torch():
     spec = importlib.util.spec_from_file_location("jtus_bench_torch_dlctus", TORCH_REFERENCE)
     ref = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(ref)
-    torch.set_num_threads(os.cpu_count())
+    # as many threads as cores this process may run on (taskset), as XLA:CPU does
+    torch.set_num_threads(len(os.sched_getaffinity(0)))
     return torch, ref
 
 
@@ -338,7 +339,7 @@ def run(args):
                               args.train_loss_frames, args.repeats, remat=args.train_remat,
                               unroll=True if args.train_unroll else 1,
                               conv_backward=args.train_conv_backward, warp=warp,
-                              against=against)
+                              against=against, hoist=args.train_hoist)
             _progress(rec)
             rows.append(rec)
         rec = rows[0]
@@ -387,7 +388,8 @@ def markdown(report):
         scan = "unrolled" if r["unroll"] else "rolled"
         lines += [f"Training step (DLCTUS {r['factor']}x, crop {r['crop']}, batch {r['batch']}, "
                   f"sequence {r['seq']}, loss on the last {r['loss_frames']}, Adam; {scan} scan, "
-                  f"{r['conv_backward']} conv backward{', remat' if r['remat'] else ''}): "
+                  f"{r['conv_backward']} conv backward{', remat' if r['remat'] else ''}"
+                  f"{', preparation hoisted' if r.get('hoist') else ''}): "
                   f"jtus {r['s_per_step']:.3f} s, PyTorch {r.get('torch_s_per_step', float('nan')):.3f} s, "
                   f"torch/jtus {r.get('torch_over_jtus', float('nan')):.2f}.",
                   "", f"Training throughput: jtus {r['frames_per_s']:.1f} frames/s, PyTorch "
@@ -435,6 +437,9 @@ def main(argv=None):
                    help="DLCTUS reprojection warps to time the training step with (the "
                         "first is the headline figure; PyTorch's reference uses bicubic)")
     p.add_argument("--train-remat", action="store_true")
+    p.add_argument("--train-hoist", action=argparse.BooleanOptionalAction, default=True,
+                   help="compute the carry-independent part of each frame before the scan "
+                        "(Model.prepare; the default)")
     p.add_argument("--train-conv-backward", choices=("custom", "autodiff"), default="custom")
     p.add_argument("--torch", action=argparse.BooleanOptionalAction, default=True,
                    help="also time the PyTorch reference")

@@ -17,7 +17,9 @@ Modes:
   every k1 frames, each back-propagating through the last k2 frames; the carry
   between windows is cut with ``stop_gradient``. With ``k2 = T`` it is BPTT.
 
-``remat`` wraps the step in ``jax.checkpoint``. ``unroll`` is passed to ``lax.scan``
+``remat`` wraps the step in ``jax.checkpoint``: ``True`` saves nothing (every
+intermediate is recomputed in the backward pass), a name from ``REMAT_POLICIES``
+saves what that ``jax.checkpoint_policies`` policy saves. ``unroll`` is passed to ``lax.scan``
 (``True`` unrolls fully: on XLA:CPU a rolled scan over convolutions has a slow
 backward, see ``docs/performance.md``).
 """
@@ -51,8 +53,22 @@ def first_state(model, frames):
     return model.init_state(jax.tree_util.tree_map(lambda x: x[0], frames))
 
 
+REMAT_POLICIES = {
+    "dots": jax.checkpoint_policies.dots_saveable,  # matmul and convolution outputs
+    "dots_no_batch": jax.checkpoint_policies.dots_with_no_batch_dims_saveable,
+}
+
+
 def _body(step, params, remat):
-    fn = jax.checkpoint(step) if remat else step
+    if remat in (False, None):
+        fn = step
+    elif remat is True:
+        fn = jax.checkpoint(step)
+    elif remat in REMAT_POLICIES:
+        fn = jax.checkpoint(step, policy=REMAT_POLICIES[remat])
+    else:
+        raise ValueError(f"remat: expected True, False or one of {tuple(REMAT_POLICIES)}, "
+                         f"got {remat!r}")
     return lambda state, frame: fn(params, state, frame)
 
 
@@ -98,26 +114,39 @@ def metrics(step, params, state, frames, targets, metric_fn, *, unroll=1, check=
     return ms, carry.state
 
 
-def _segment(body, loss_fn, carry, frames, targets, with_loss, unroll):
+def parts(model):
+    """``(advance, prepare)`` of a ``Model`` for ``window_loss`` (``Model``'s docstring);
+    ``(step, None)`` for a model without the split."""
+    if getattr(model, "advance", None) is None:
+        return model.step, None
+    return model.advance, model.prepare
+
+
+def _segment(body, loss_fn, carry, frames, prepared, targets, with_loss, unroll):
     def f(c, xs):
-        frame, target = xs
-        out, state = body(c.state, frame)
+        frame, pre, target = xs
+        out, state = body(c.state, frame if pre is None else pre)
         with jax.named_scope("loss"):
             loss = (loss_fn(out, target, c.prev_out, c.prev_target, c.has_prev, frame)
                     if with_loss else jnp.zeros((), jnp.float32))
         return Carry(state, out.astype(jnp.float32), target.astype(jnp.float32),
                      jnp.asarray(True)), loss
 
-    return jax.lax.scan(f, carry, (frames, targets), unroll=unroll)
+    return jax.lax.scan(f, carry, (frames, prepared, targets), unroll=unroll)
 
 
 def window_loss(step, loss_fn, params, carry: Carry, frames, targets, *, loss_frames,
-                keep_at=None, remat=False, unroll=1):
+                keep_at=None, remat=False, unroll=1, prepare=None):
     """Mean of ``loss_fn`` over the last ``loss_frames`` frames of the window.
 
     ``loss_fn(out, target, prev_out, prev_target, has_prev, frame) -> scalar``.
     Returns ``(loss, (final carry, carry after keep_at frames or None))``. Segments
     are cut at static indices, so frames before the loss frames compute no loss.
+
+    ``prepare``: a model's ``prepare`` (with its ``advance`` as ``step``; ``parts``),
+    run on every frame of the window at once before the scan, so that what does not
+    recur is neither computed inside the loop nor saved per frame for the backward
+    pass (a training window is short; long inference rollouts keep the plain step).
     """
     n = frames.color.shape[0]
     if not 1 <= loss_frames <= n:
@@ -128,9 +157,13 @@ def window_loss(step, loss_fn, params, carry: Carry, frames, targets, *, loss_fr
     cuts = sorted({0, n - loss_frames, n} | ({keep_at} if keep_at else set()))
     total, kept = jnp.zeros((), jnp.float32), None
     for a, b in zip(cuts[:-1], cuts[1:]):
-        seg = jax.tree_util.tree_map(lambda x: x[a:b], (frames, targets))
-        carry, losses = _segment(body, loss_fn, carry, *seg, with_loss=a >= n - loss_frames,
-                                 unroll=unroll)
+        seg_frames, seg_targets = jax.tree_util.tree_map(lambda x: x[a:b], (frames, targets))
+        prepared = None
+        if prepare is not None:  # per segment: slicing prepared HR tensors costs copies
+            with jax.named_scope("prepare"):
+                prepared = jax.vmap(prepare)(seg_frames)
+        carry, losses = _segment(body, loss_fn, carry, seg_frames, prepared, seg_targets,
+                                 with_loss=a >= n - loss_frames, unroll=unroll)
         total = total + losses.sum()
         if b == keep_at:
             kept = carry

@@ -56,7 +56,7 @@ def create_train_state(params, optimizer) -> TrainState:
 
 
 def make_train_step(model, loss_fn, optimizer, *, loss_frames, keep_at=None, remat=False,
-                    unroll=1, jit=True):
+                    unroll=1, jit=True, hoist=True):
     """``(train_state, carry, frames [T,B,...], targets [T,B,H,W,3]) ->
     (train_state, next carry, stats)``.
 
@@ -64,13 +64,18 @@ def make_train_step(model, loss_fn, optimizer, *, loss_frames, keep_at=None, rem
     of k2 frames from ``rollout.tbptt_windows``, ``loss_frames = k1`` and
     ``keep_at = k1`` when k1 < k2; the returned carry (gradient cut) starts the next
     window.
+
+    ``hoist``: run the model's ``prepare`` for the whole window before the scan
+    (``rollout.window_loss``); False scans the plain step (the same values; for
+    measurements, docs/performance.md).
     """
+    step, prepare = rollout.parts(model) if hoist else (model.step, None)
 
     def train_step(ts: TrainState, carry: rollout.Carry, frames, targets):
         def f(p):
-            return rollout.window_loss(model.step, loss_fn, p, carry, frames, targets,
+            return rollout.window_loss(step, loss_fn, p, carry, frames, targets,
                                        loss_frames=loss_frames, keep_at=keep_at, remat=remat,
-                                       unroll=unroll)
+                                       unroll=unroll, prepare=prepare)
 
         (loss, (last, kept)), grads = jax.value_and_grad(f, has_aux=True)(ts.params)
         with jax.named_scope("optimizer"):
@@ -217,8 +222,9 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
     accept = recipe.accept_for(config)
     step_fn = make_train_step(model, loss_fn, opt, loss_frames=plan.loss_frames,
                               keep_at=plan.keep_at, remat=config.remat)
+    advance, prepare = rollout.parts(model)
     eval_loss = jax.jit(lambda p, c, f, t: rollout.window_loss(
-        model.step, loss_fn, p, c, f, t, loss_frames=plan.loss_frames)[0])
+        advance, loss_fn, p, c, f, t, loss_frames=plan.loss_frames, prepare=prepare)[0])
     with Dataset(config.dataset) as ds:
         val_rng = np.random.default_rng([config.seed, 10**6])
         val_crops = [jax.tree_util.tree_map(jnp.asarray, ds.crops(

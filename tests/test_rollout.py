@@ -105,11 +105,52 @@ def _loss_value_and_grad(model, params, frames, targets, K, **kw):
 def test_remat_and_unroll_equal_plain():
     model, params, frames, targets = _setup(T=6)
     (l0, _), g0 = _loss_value_and_grad(model, params, frames, targets, 3)
-    for kw in ({"remat": True}, {"unroll": True}):
+    for kw in ({"remat": True}, {"remat": "dots"}, {"remat": "dots_no_batch"},
+               {"unroll": True}):
         (l1, _), g1 = _loss_value_and_grad(model, params, frames, targets, 3, **kw)
         np.testing.assert_allclose(l1, l0, rtol=1e-6)
         for a, b in zip(jax.tree_util.tree_leaves(g1), jax.tree_util.tree_leaves(g0)):
             np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
+
+
+@pytest.mark.parametrize("warp", ["bicubic", "nearest", "bicubic5"])
+def test_hoisted_preparation_equals_the_plain_step_float64(x64, warp):
+    """``Model.prepare`` run for the whole window before the scan, then ``advance``
+    inside it, gives the plain scan's loss and gradients (float64, 1e-12), with a reset
+    in the middle of one batch element, HDR colour with an exposure per frame, and a
+    TBPTT cut (``keep_at``); and ``step`` is ``advance`` after ``prepare``."""
+    config = dlctus.Config(factor=4, warp=warp, hdr=True, dtype="float64")
+    model, params, frames, targets = _setup(T=6, config=config, dtype=np.float64)
+    frames = frames._replace(color=frames.color * 4.0,
+                             exposure=jnp.linspace(0.2, 0.5, 12).reshape(6, 2),
+                             reset=jnp.zeros((6, 2), bool).at[0].set(True).at[3, 1].set(True))
+    carry = rollout.start(model.init_state(_first(frames)), targets[0])
+    loss_fn = losses.make("st-linear", 4, theta=0.5)
+    advance, prepare = rollout.parts(model)
+    assert prepare is not None
+
+    def f(p, hoist):
+        return rollout.window_loss(advance if hoist else model.step, loss_fn, p, carry, frames,
+                                   targets, loss_frames=3, keep_at=2,
+                                   prepare=prepare if hoist else None)
+
+    (l0, (c0, k0)), g0 = jax.value_and_grad(f, has_aux=True)(params, False)
+    (l1, (c1, k1)), g1 = jax.value_and_grad(f, has_aux=True)(params, True)
+    np.testing.assert_allclose(l1, l0, rtol=1e-12)
+    leaves = jax.tree_util.tree_leaves
+    for a, b in zip(leaves((g1, c1, k1)), leaves((g0, c0, k0))):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-14)
+    frame = _first(frames)
+    out0, s0 = model.step(params, carry.state, frame)
+    out1, s1 = advance(params, carry.state, prepare(frame))
+    np.testing.assert_array_equal(out1, out0)
+    np.testing.assert_array_equal(s1.history, s0.history)
+
+
+def test_remat_rejects_an_unknown_policy():
+    model, params, frames, targets = _setup(T=2)
+    with pytest.raises(ValueError, match="remat: expected"):
+        _loss_value_and_grad(model, params, frames, targets, 1, remat="everything")
 
 
 def test_tbptt_with_full_window_equals_bptt():

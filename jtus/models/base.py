@@ -21,56 +21,87 @@ def carry_dtype(name):
 
 class Model(NamedTuple):
     """``init(key) -> params``; ``init_state(frame) -> state``;
-    ``step(params, state, frame) -> (out [B,H,W,3], state)``; all pure and jit-able."""
+    ``step(params, state, frame) -> (out [B,H,W,3], state)``; all pure and jit-able.
+
+    ``step`` is ``advance(params, state, prepare(frame))``: ``prepare`` is the part of a
+    step that depends on neither the parameters nor the state (input up-sampling, the
+    warp's coordinates and weights), which ``jtus.rollout`` computes for every frame of
+    a sequence at once, outside its ``lax.scan``. A model without such a part has the
+    identity for ``prepare`` and its step for ``advance``."""
 
     init: Callable[..., Any]
     init_state: Callable[..., Any]
     step: Callable[..., Any]
     config: Any
+    prepare: Callable[..., Any] = lambda frame: frame
+    advance: Optional[Callable[..., Any]] = None
 
 
-def bind(config, step, init=None, init_state=None) -> Model:
+def bind(config, step, init=None, init_state=None, prepare=None, advance=None) -> Model:
     """A ``Model`` of module functions ``step(params, state, frame, config)``,
     ``init(key, config)`` and ``init_state(frame, config)`` with ``config`` bound; a
     model without parameters (or without state) leaves ``init`` (``init_state``) out
-    and gets ``{}`` (``()``). The bound step goes through ``exposed`` (HDR colour)."""
+    and gets ``{}`` (``()``). ``prepare(frame, config)`` and ``advance(params, state,
+    prepared, config)``, given together, split ``step`` (``Model``). The bound
+    functions go through ``exposed`` (HDR colour)."""
+    hdr = getattr(config, "hdr", False)
+    if (prepare is None) != (advance is None):
+        raise ValueError("prepare, advance: give both or neither")
+    if prepare is None:
+        prepare = lambda frame, config: frame  # noqa: E731
+        advance = step
+    prep, adv = exposed_parts(lambda frame: prepare(frame, config),
+                              lambda params, state, pre: advance(params, state, pre, config),
+                              hdr)
     return Model(init=(lambda key: init(key, config)) if init else (lambda key: {}),
                  init_state=((lambda frame: init_state(frame, config)) if init_state
                              else (lambda frame: ())),
-                 step=exposed(lambda params, state, frame: step(params, state, frame, config),
-                              getattr(config, "hdr", False)),
-                 config=config)
+                 step=lambda params, state, frame: adv(params, state, prep(frame)),
+                 config=config, prepare=prep, advance=adv)
 
 
-def exposed(step, hdr):
-    """Every model's edge for HDR colour (docs/conventions.md, "HDR and exposure").
+def exposed_parts(prepare, advance, hdr):
+    """Every model's edge for HDR colour (docs/conventions.md, "HDR and exposure"),
+    around a step split as ``prepare(frame)`` and ``advance(params, state, prepared)``.
 
     The model body sees pre-exposed colour ``exposure * color`` and, with ``hdr``
     (a config field: the weights were trained on tone-mapped colour), tone-mapped by
     ``sampling.tonemap``; its output is mapped back (inverse tone map, divided by the
     exposure) to linear radiance. Its history stays in that pre-exposed, tone-mapped
     space, as FSR 2's does. A frame without exposure counts as exposure 1, so an LDR
-    model (``hdr`` False) given exposure 1 computes exactly what it computes without."""
+    model (``hdr`` False) given exposure 1 computes exactly what it computes without.
+    Returns the wrapped ``(prepare, advance)``; the exposure scale travels with the
+    prepared frame."""
     from jtus import sampling
 
-    def run(params, state, frame):
+    def prep(frame):
         e = frame.exposure
         if e is None and not hdr:
-            return step(params, state, frame)
+            return prepare(frame), None
         c = frame.color
         scale = None if e is None else sampling.exposure_scale(e, c)
         if scale is not None:
             c = c * scale
         if hdr:
             c = sampling.tonemap(c)
-        out, state = step(params, state, frame._replace(color=c, exposure=None))
+        return prepare(frame._replace(color=c, exposure=None)), scale
+
+    def adv(params, state, prepared):
+        pre, scale = prepared
+        out, state = advance(params, state, pre)
         if hdr:
             out = sampling.inverse_tonemap(out)
         if scale is not None:
             out = out / scale.astype(out.dtype)
         return out, state
 
-    return run
+    return prep, adv
+
+
+def exposed(step, hdr):
+    """``step(params, state, frame)`` behind the HDR edge of ``exposed_parts``."""
+    prep, adv = exposed_parts(lambda frame: frame, step, hdr)
+    return lambda params, state, frame: adv(params, state, prep(frame))
 
 
 class Cost(NamedTuple):

@@ -30,7 +30,7 @@ compute dtype; the carried history is always float32 (all three are float64 when
 from __future__ import annotations
 
 import dataclasses
-from typing import NamedTuple
+from typing import NamedTuple, Optional
 
 import jax
 import jax.numpy as jnp
@@ -198,10 +198,19 @@ def _output(jau, hist, net, config):
     return _construct(jau, hist, o[..., 0:1], o[..., 1:2], config, axis=-1)
 
 
-def prepare(state: State, frame: Frame, config: Config):
-    """Stages 1-2: ``(NetInput, jau [B,H,W,4], hist [B,H,W,4])``, float32; the
-    zero-up-sampled half of the network input is built (or not: ``opt2``) by
-    ``network``."""
+class Prepared(NamedTuple):
+    """What a step needs of its frame that does not depend on the history (stages 1
+    and the coordinate half of 2): computed for every frame of a sequence at once,
+    outside the recurrent scan (``Model.prepare``), so the scan carries only what
+    truly recurs and the backward pass keeps none of it per frame."""
+    lr: jax.Array                 # [B,h,w,4] RGB and linear depth
+    jitter: jax.Array             # [B,2]
+    jau: jax.Array                # [B,H,W,4] jitter-aligned input, accumulation 1
+    warp: sampling.WarpPlan       # the history read at P + f * mv
+    reset: Optional[jax.Array]    # [B] bool or None
+
+
+def prepare_frame(frame: Frame, config: Config = Config()) -> Prepared:
     f = config.factor
     color, depth, motion, jitter = _cast(frame, config)
     # The named scopes label the HLO for profiles (python -m jtus.profile).
@@ -209,23 +218,37 @@ def prepare(state: State, frame: Frame, config: Config):
         lr = jnp.concatenate([color, linearize_depth(depth, config.near, config.far)], -1)
         jau = _jau(config, color, jitter)
     with jax.named_scope("reprojection"):
+        mv = sampling.dilate_motion(motion, depth) if config.dilation else motion
+        xy = sampling.reproject_coords(mv, f)
+        plan = sampling.warp_plan(xy, *jau.shape[1:3], method=config.warp, a=config.warp_a,
+                                  dtype=jau.dtype)
+    return Prepared(lr, jitter, jau, plan, frame.reset)
+
+
+def reproject(state: State, pre: Prepared, config: Config):
+    """Stage 2's history half: ``(NetInput, jau, hist)``, float32; the zero-up-sampled
+    half of the network input is built (or not: ``opt2``) by ``network``."""
+    with jax.named_scope("reprojection"):
         history = state.history
         if not config.accumulation:
             history = history.at[..., 3].set(1.0)
-        mv = sampling.dilate_motion(motion, depth) if config.dilation else motion
-        xy = sampling.reproject_coords(mv, f)
-        rep, inside = sampling.sample(history, xy, config.warp, a=config.warp_a,
-                                      return_mask=True)
-        hist = jnp.where(inside, rep, jau)
+        rep = sampling.warp_read(history, pre.warp, config.warp, config.warp_a)
+        hist = jnp.where(pre.warp.inside, rep, pre.jau)
         # A reset (first frame, camera cut) takes the fresh input as its history, not
         # reprojected: this frame's motion points into a frame the history never saw
         # (the thesis's listing treats the first frame the same way).
-        hist = reset_select(frame.reset, jau, hist)
-    return NetInput(lr, jitter, hist), jau, hist
+        hist = reset_select(pre.reset, pre.jau, hist)
+    return NetInput(pre.lr, pre.jitter, hist), pre.jau, hist
 
 
-def step(params, state: State, frame: Frame, config: Config = Config()):
-    net_in, jau, hist = prepare(state, frame, config)
+def prepare(state: State, frame: Frame, config: Config):
+    """Stages 1-2: ``(NetInput, jau [B,H,W,4], hist [B,H,W,4])``, float32."""
+    return reproject(state, prepare_frame(frame, config), config)
+
+
+def advance(params, state: State, pre: Prepared, config: Config = Config()):
+    """The step on a prepared frame: ``step(p, s, f) == advance(p, s, prepare_frame(f))``."""
+    net_in, jau, hist = reproject(state, pre, config)
     with jax.named_scope("network"):
         net = network(params, net_in, config)
     with jax.named_scope("output"):
@@ -233,8 +256,13 @@ def step(params, state: State, frame: Frame, config: Config = Config()):
     return out[..., :3], State(out)
 
 
+def step(params, state: State, frame: Frame, config: Config = Config()):
+    return advance(params, state, prepare_frame(frame, config), config)
+
+
 def make(config: Config = Config()) -> Model:
-    return bind(config, step, init=init, init_state=init_state)
+    return bind(config, step, init=init, init_state=init_state, prepare=prepare_frame,
+                advance=advance)
 
 
 def cost(config: Config, H, W) -> Cost:

@@ -18,6 +18,8 @@ carries it, so gradients are non-zero at pixel centres).
 
 from __future__ import annotations
 
+from typing import NamedTuple, Optional
+
 import jax
 import jax.numpy as jnp
 
@@ -156,10 +158,59 @@ def _split(xy):
     return i0.astype(jnp.int32), (u - i0).astype(xy.dtype)
 
 
-def _nearest(image, xy):
-    i0 = jnp.floor(xy).astype(jnp.int32)
-    one = jnp.ones(xy.shape[:-1] + (1,), image.dtype)
-    return _separable(image, i0[..., 1], i0[..., 0], one, one)  # one tap of weight 1
+class WarpPlan(NamedTuple):
+    """Where and how a warp reads, before the image is known: the part of ``sample``
+    that depends on the coordinates only. A recurrent model computes it outside its
+    ``lax.scan`` (for every frame at once) and reads the carried history through it
+    inside (``warp_read``); ``sample`` is ``warp_read(image, warp_plan(...))``. The
+    separable methods keep per-axis first taps and weights; ``bicubic9`` and
+    ``bicubic5``, built from bilinear fetches, keep the coordinates."""
+    iy0: Optional[jax.Array]  # [B,...] int32 first row tap (separable methods)
+    ix0: Optional[jax.Array]  # [B,...] int32 first column tap
+    wy: Optional[jax.Array]   # [B,...,ny] row weights
+    wx: Optional[jax.Array]   # [B,...,nx] column weights
+    xy: Optional[jax.Array]   # [B,...,2] the coordinates (bicubic9, bicubic5)
+    inside: jax.Array         # [B,...,1] bool: ``inside_mask``
+
+
+def warp_plan(xy, height, width, method="bilinear", a=PYTORCH_A,
+              dtype=jnp.float32) -> WarpPlan:
+    """The ``WarpPlan`` of reading a ``height x width`` image of ``dtype`` at ``xy
+    [B,Ho,Wo,2]`` with ``method`` (``sample``'s arguments otherwise)."""
+    if method not in METHODS:
+        raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
+    if not jnp.issubdtype(xy.dtype, jnp.floating):
+        xy = xy.astype(dtype if dtype == jnp.float64 else jnp.float32)
+    xy = jnp.clip(xy, -_FAR, _FAR)
+    inside = inside_mask(xy, height, width)
+    if method in ("bicubic9", "bicubic5"):
+        return WarpPlan(None, None, None, None, xy, inside)
+    if method == "nearest":
+        i0 = jnp.floor(xy).astype(jnp.int32)
+        # one tap of weight 1; NaN coordinates give NaN through the weight
+        one = jnp.where(jnp.isnan(xy).any(-1, keepdims=True), jnp.nan, 1).astype(dtype)
+        return WarpPlan(i0[..., 1], i0[..., 0], one, one, None, inside)
+    i0, t = _split(xy)
+    if method == "bilinear":
+        wx, wy = (_linear_weights(t[..., k:k + 1].astype(dtype)) for k in (0, 1))
+        return WarpPlan(i0[..., 1], i0[..., 0], wy, wx, None, inside)
+    # 16 taps, Keys parameter a. Concatenated Keys weights: a broadcast form (as
+    # ``_linear_weights``) was measured slower in DLCTUS's step at 1080p (XLA:CPU
+    # split the read across two fusions).
+    a = CATMULL_ROM_A if method == "catmull_rom" else a
+    wx, wy = (jnp.concatenate(keys_weights(t[..., k:k + 1].astype(dtype), a), -1)
+              for k in (0, 1))
+    return WarpPlan(i0[..., 1] - 1, i0[..., 0] - 1, wy, wx, None, inside)
+
+
+def warp_read(image, p: WarpPlan, method="bilinear", a=PYTORCH_A):
+    """Read ``image [B,H,W,C]`` through ``p`` (made by ``warp_plan`` for this image's size
+    and dtype, with the same ``method`` and ``a``) -> ``[B,Ho,Wo,C]``."""
+    if method == "bicubic9":
+        return _bicubic9(image, p.xy, a)
+    if method == "bicubic5":
+        return _bicubic5(image, p.xy, a)
+    return _separable(image, p.iy0, p.ix0, p.wy, p.wx)
 
 
 def _bilinear_at(image, x, y):
@@ -168,20 +219,6 @@ def _bilinear_at(image, x, y):
     iy, ty = _split(y)
     return _separable(image, iy[..., 0], ix[..., 0], _linear_weights(ty.astype(image.dtype)),
                       _linear_weights(tx.astype(image.dtype)))
-
-
-def _bilinear(image, xy):
-    return _bilinear_at(image, xy[..., 0:1], xy[..., 1:2])
-
-
-def _bicubic(image, xy, a):
-    """The 16-tap separable Keys kernel, x first then y (PyTorch's order)."""
-    i0, t = _split(xy)
-    # Concatenated Keys weights: a broadcast form (as ``_linear_weights``) was measured
-    # slower in DLCTUS's step at 1080p (XLA:CPU split the read across two fusions).
-    wx = jnp.concatenate(keys_weights(t[..., 0:1].astype(image.dtype), a), -1)
-    wy = jnp.concatenate(keys_weights(t[..., 1:2].astype(image.dtype), a), -1)
-    return _separable(image, i0[..., 1] - 1, i0[..., 0] - 1, wy, wx)
 
 
 def _three_fetches(i0, t, a, dtype):
@@ -234,7 +271,7 @@ def sample(image, xy, method="bilinear", a=PYTORCH_A, return_mask=False):
     the three cubic methods other than ``catmull_rom``.
 
     Returns ``[B,Ho,Wo,C]`` in the image's dtype, and with ``return_mask`` also
-    ``inside_mask(xy, H, W)``.
+    ``inside_mask(xy, H, W)``. ``warp_read(image, warp_plan(xy, H, W, ...))``.
     NaN coordinates give NaN with every method. Integer images and coordinates are
     cast to floating point first (an integer coordinate 2 is the corner between
     pixels 1 and 2, as 2.0 is). Coordinates beyond ``±2**24`` pixels are clamped there:
@@ -244,27 +281,9 @@ def sample(image, xy, method="bilinear", a=PYTORCH_A, return_mask=False):
     _check(image, xy)
     if not jnp.issubdtype(image.dtype, jnp.floating):
         image = image.astype(jnp.float32)
-    if not jnp.issubdtype(xy.dtype, jnp.floating):
-        xy = xy.astype(image.dtype if image.dtype == jnp.float64 else jnp.float32)
-    xy = jnp.clip(xy, -_FAR, _FAR)
-    if method == "nearest":
-        out = _nearest(image, xy)
-        out = jnp.where(jnp.isnan(xy).any(-1, keepdims=True), jnp.nan, out)
-    elif method == "bilinear":
-        out = _bilinear(image, xy)
-    elif method == "bicubic":
-        out = _bicubic(image, xy, a)
-    elif method == "catmull_rom":
-        out = _bicubic(image, xy, CATMULL_ROM_A)
-    elif method == "bicubic9":
-        out = _bicubic9(image, xy, a)
-    elif method == "bicubic5":
-        out = _bicubic5(image, xy, a)
-    else:
-        raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
-    if return_mask:
-        return out, inside_mask(xy, *image.shape[1:3])
-    return out
+    p = warp_plan(xy, *image.shape[1:3], method=method, a=a, dtype=image.dtype)
+    out = warp_read(image, p, method, a)
+    return (out, p.inside) if return_mask else out
 
 
 def inside_mask(xy, height, width):

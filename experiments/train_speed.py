@@ -1,0 +1,126 @@
+"""Training-step variants of DLCTUS timed against each other and against PyTorch, in
+one process, round-robin (a, b, c, ..., a, b, c, ...) so every variant sees the same
+machine; the ratios are what to read (docs/performance.md, "Training speed").
+
+Variants: the plain scan of ``step`` (``hoist`` off), the carry-independent
+preparation hoisted out of the scan (``Model.prepare``, the default), and the hoisted
+step under ``jax.checkpoint`` policies (``rollout.REMAT_POLICIES``, full remat). Then,
+for the default variant, training frames per second over batch sizes and crops.
+
+    python experiments/train_speed.py                     # the bench's workload
+    taskset -c 1 python experiments/train_speed.py --out docs/results/train-speed-1core
+
+Writes ``result.json`` and ``result.md`` under ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+
+import numpy as np
+
+from jtus import bench
+
+
+def round_robin(fns, repeats):
+    """Median seconds of each ``fn()`` (which blocks), timed in turn after a warm-up."""
+    for fn in fns.values():
+        fn()
+    times = {k: [] for k in fns}
+    for _ in range(repeats):
+        for k, fn in fns.items():
+            t0 = time.perf_counter()
+            fn()
+            times[k].append(time.perf_counter() - t0)
+    return {k: float(np.median(v)) for k, v in times.items()}
+
+
+VARIANTS = {  # name -> train_workload overrides
+    "plain scan": {"hoist": False},
+    "hoisted preparation": {"hoist": True},
+    "hoisted + remat dots": {"hoist": True, "remat": "dots"},
+    "hoisted + remat dots_no_batch": {"hoist": True, "remat": "dots_no_batch"},
+    "hoisted + full remat": {"hoist": True, "remat": True},
+}
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--factor", type=int, default=2)
+    p.add_argument("--crop", type=int, default=128)
+    p.add_argument("--batch", type=int, default=4)
+    p.add_argument("--seq", type=int, default=8)
+    p.add_argument("--loss-frames", type=int, default=5)
+    p.add_argument("--repeats", type=int, default=7)
+    p.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    p.add_argument("--shapes", nargs="*", default=["2x64", "4x64", "8x64", "2x128", "4x128",
+                                                   "8x128", "2x192", "4x192"],
+                   help="BATCHxCROP for the throughput table (empty: none)")
+    p.add_argument("--no-torch", action="store_true")
+    p.add_argument("--out", default="docs/results/train-speed")
+    args = p.parse_args(argv)
+    w = (args.factor, args.crop, args.batch, args.seq, args.loss_frames)
+    fns, mem = {}, {}
+    for name in args.variants:
+        run, _, _ = bench.train_workload(*w, **VARIANTS[name])
+        fns[name] = run
+        m = run.compiled().memory_analysis()
+        mem[name] = (m.temp_size_in_bytes + m.argument_size_in_bytes
+                     + m.output_size_in_bytes) / 2 ** 20
+    if not args.no_torch:
+        fns["PyTorch"] = bench.torch_train(*w)
+    print(f"timing {len(fns)} variants x {args.repeats}", file=sys.stderr)
+    sec = round_robin(fns, args.repeats)
+    frames = args.batch * args.seq
+    base = sec["plain scan"] if "plain scan" in sec else None
+    rows = [{"variant": k, "s_per_step": v, "frames_per_s": frames / v,
+             "peak_mib": mem.get(k), "plain_over_this": base / v if base else None,
+             "torch_over_this": sec["PyTorch"] / v if "PyTorch" in sec else None}
+            for k, v in sec.items()]
+    shapes = []
+    for spec in args.shapes:
+        b, c = (int(x) for x in spec.split("x"))
+        run, _, _ = bench.train_workload(args.factor, c, b, args.seq, args.loss_frames)
+        s = bench.timeit(run, max(3, args.repeats // 2))
+        shapes.append({"batch": b, "crop": c, "s_per_step": s, "frames_per_s": b * args.seq / s,
+                       "mpix_per_s": b * args.seq * c * c / s / 1e6})
+        print(f"  {spec}: {s:.3f} s/step", file=sys.stderr)
+    report = {"hardware": bench.hardware(), "command": "python experiments/train_speed.py "
+              + " ".join(argv if argv is not None else sys.argv[1:]),
+              "workload": dict(zip(("factor", "crop", "batch", "seq", "loss_frames"), w)),
+              "rows": rows, "shapes": shapes}
+    os.makedirs(args.out, exist_ok=True)
+    with open(os.path.join(args.out, "result.json"), "w") as f:
+        json.dump(report, f, indent=1)
+    hw = report["hardware"]
+    md = [f"Command: `{report['command']}`", "",
+          f"Hardware: {hw.get('cpu', '?')}, {hw.get('cores', '?')} cores visible, "
+          f"JAX {hw.get('jax', '?')} (affinity: {len(os.sched_getaffinity(0))} core(s)).", "",
+          f"DLCTUS {args.factor}x training step, crop {args.crop}, batch {args.batch}, "
+          f"{args.seq} frames, loss on the last {args.loss_frames}, L1, Adam; medians of "
+          f"{args.repeats} round-robin repeats.", "",
+          "| variant | s/step | frames/s | compiled memory MiB | plain/this | torch/this |",
+          "| --- | --- | --- | --- | --- | --- |"]
+    for r in rows:
+        md.append(f"| {r['variant']} | {r['s_per_step']:.3f} | {r['frames_per_s']:.1f} | "
+                  + (f"{r['peak_mib']:.0f}" if r["peak_mib"] else "-") + " | "
+                  + (f"{r['plain_over_this']:.2f}" if r["plain_over_this"] else "-") + " | "
+                  + (f"{r['torch_over_this']:.2f}" if r["torch_over_this"] else "-") + " |")
+    if shapes:
+        md += ["", "Default variant over batch and crop (same sequence; frames/s = batch x "
+               "sequence per second, Mpix/s = HR pixels trained on per second):", "",
+               "| batch | crop | s/step | frames/s | HR Mpix/s |",
+               "| --- | --- | --- | --- | --- |"]
+        md += [f"| {s['batch']} | {s['crop']} | {s['s_per_step']:.3f} | {s['frames_per_s']:.1f} "
+               f"| {s['mpix_per_s']:.2f} |" for s in shapes]
+    with open(os.path.join(args.out, "result.md"), "w") as f:
+        f.write("\n".join(md) + "\n")
+    print("\n".join(md))
+
+
+if __name__ == "__main__":
+    main()
