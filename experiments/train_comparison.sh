@@ -10,6 +10,11 @@
 #   bash experiments/train_comparison.sh                 # everything, in order
 #   ONLY="mlp kpn" FACTORS=4 bash experiments/train_comparison.sh
 #
+# A run spans sessions through committed checkpoints: `SAVE_ONLY=1 bash
+# experiments/train_comparison.sh` copies every run's latest checkpoint, config and log
+# to experiments/checkpoints/<model>-diverse-x<f>/ (about 1 MB each, to commit), and a
+# run whose workdir has no checkpoint starts from that copy with --resume.
+#
 # Runs land in runs/<model>-diverse-x<f>/; when a run has finished its schedule its
 # parameters are exported to experiments/weights/<model>-x<f>.msgpack (with the config
 # and the per-epoch log), which the README's evaluation command reads. Pass
@@ -26,6 +31,18 @@ declare -A args=(
 for m in ${ONLY:-mlp kpn nsrr-fast nsrr}; do
   for f in ${FACTORS:-4 2}; do
     wd=runs/$m-diverse-x$f
+    saved=experiments/checkpoints/$m-diverse-x$f
+    if [ -n "${SAVE_ONLY:-}" ]; then
+      if [ -f "$wd/checkpoint.msgpack" ]; then
+        mkdir -p "$saved"
+        cp "$wd"/checkpoint.msgpack "$wd"/config.json "$wd"/metrics.* "$saved"/
+        echo "saved $wd -> $saved"
+      fi
+      continue
+    fi
+    if [ ! -f "$wd/checkpoint.msgpack" ] && [ -f "$saved/checkpoint.msgpack" ]; then
+      mkdir -p "$wd" && cp "$saved"/* "$wd"/ && echo "resuming $wd from $saved"
+    fi
     resume=""
     [ -f "$wd/checkpoint.msgpack" ] && resume="--resume"
     # shellcheck disable=SC2086

@@ -48,6 +48,46 @@ VARIANTS = {  # name -> train_workload overrides
 }
 
 
+def comparison_step(name, factor, crop, batch, seq, loss_frames, fast=True):
+    """A blocking training step (its own paper's loss, Adam) of comparison system
+    ``name`` on random data; ``fast=False`` builds it with the SAME convolutions'
+    plain autodiff backward (``layers.conv`` in place of ``layers.conv_same_fast``:
+    the same values, tested in float64) to show what the custom backward is worth."""
+    import contextlib
+
+    import jax
+    import jax.numpy as jnp
+    import optax
+
+    from jtus import losses, models, rollout, train
+    from jtus.models import layers
+
+    patch = contextlib.nullcontext()
+    if not fast:
+        from unittest import mock
+        patch = mock.patch.object(layers, "conv_same_fast", layers.conv)
+    with patch:
+        model = models.build(name, factor)
+        opt = optax.adam(1e-4)
+        ts = [train.create_train_state(model.init(jax.random.PRNGKey(0)), opt)]
+        step = train.make_train_step(model, losses.make(models.spec(name).loss, factor), opt,
+                                     loss_frames=loss_frames)
+        h = crop // factor
+        frames = [bench._inputs(h, h, batch, seed=t) for t in range(seq)]
+        frames = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *frames)
+        frames = frames._replace(reset=jnp.zeros((seq, batch), bool).at[0].set(True))
+        targets = jnp.asarray(np.random.default_rng(9).uniform(size=(seq, batch, crop, crop, 3)),
+                              jnp.float32)
+        carry = lambda: rollout.start(rollout.first_state(model, frames), targets[0])  # noqa
+
+        def run():
+            ts[0], _, stats = step(ts[0], carry(), frames, targets)
+            stats["loss"].block_until_ready()
+
+        run()  # compile inside the patch
+    return run
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--factor", type=int, default=2)
@@ -61,6 +101,9 @@ def main(argv=None):
                                                    "8x128", "2x192", "4x192"],
                    help="BATCHxCROP for the throughput table (empty: none)")
     p.add_argument("--no-torch", action="store_true")
+    p.add_argument("--comparison", nargs="*", default=["nsrr-fast", "kpn"],
+                   help="comparison systems timed with and without the custom SAME-conv "
+                        "backward (crop 64, batch 4, 8 frames, loss on all 8)")
     p.add_argument("--out", default="docs/results/train-speed")
     args = p.parse_args(argv)
     w = (args.factor, args.crop, args.batch, args.seq, args.loss_frames)
@@ -89,10 +132,18 @@ def main(argv=None):
         shapes.append({"batch": b, "crop": c, "s_per_step": s, "frames_per_s": b * args.seq / s,
                        "mpix_per_s": b * args.seq * c * c / s / 1e6})
         print(f"  {spec}: {s:.3f} s/step", file=sys.stderr)
+    comp = []
+    for name in args.comparison:
+        pair = {"custom": comparison_step(name, args.factor, 64, 4, 8, 8),
+                "autodiff": comparison_step(name, args.factor, 64, 4, 8, 8, fast=False)}
+        t = round_robin(pair, max(3, args.repeats // 2))
+        comp.append({"model": name, "custom_s": t["custom"], "autodiff_s": t["autodiff"]})
+        print(f"  {name}: custom {t['custom']:.3f} s, autodiff {t['autodiff']:.3f} s",
+              file=sys.stderr)
     report = {"hardware": bench.hardware(), "command": "python experiments/train_speed.py "
               + " ".join(argv if argv is not None else sys.argv[1:]),
               "workload": dict(zip(("factor", "crop", "batch", "seq", "loss_frames"), w)),
-              "rows": rows, "shapes": shapes}
+              "rows": rows, "shapes": shapes, "comparison": comp}
     os.makedirs(args.out, exist_ok=True)
     with open(os.path.join(args.out, "result.json"), "w") as f:
         json.dump(report, f, indent=1)
@@ -117,6 +168,14 @@ def main(argv=None):
                "| --- | --- | --- | --- | --- |"]
         md += [f"| {s['batch']} | {s['crop']} | {s['s_per_step']:.3f} | {s['frames_per_s']:.1f} "
                f"| {s['mpix_per_s']:.2f} |" for s in shapes]
+    if comp:
+        md += ["", f"Comparison systems' training steps ({args.factor}x, crop 64, batch 4, 8 "
+               "frames, loss on all 8, their own losses, Adam), SAME convolutions with the "
+               "custom backward (`layers.conv_same_fast`) against plain autodiff:", "",
+               "| model | custom s/step | autodiff s/step | speed-up |",
+               "| --- | --- | --- | --- |"]
+        md += [f"| {c['model']} | {c['custom_s']:.3f} | {c['autodiff_s']:.3f} | "
+               f"{c['autodiff_s'] / c['custom_s']:.2f}x |" for c in comp]
     with open(os.path.join(args.out, "result.md"), "w") as f:
         f.write("\n".join(md) + "\n")
     print("\n".join(md))

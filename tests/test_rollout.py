@@ -253,6 +253,33 @@ def test_train_step_traces_once_across_tbptt_windows():
     assert len(traces) == 1  # the loss is traced once, in the one loss segment
 
 
+@pytest.mark.parametrize("k", [1, 3, 5])
+def test_conv_same_fast_equals_autodiff_float64(x64, k):
+    """``layers.conv_same_fast`` (NSRR's and KPN's SAME convolutions): values and all
+    three gradients equal plain autodiff's of ``layers.conv``, in float64, inside a
+    rolled scan as in training; and ``check_grads`` of the custom rule itself."""
+    from jtus.models import layers
+    rng = np.random.default_rng(k)
+    x = jnp.asarray(rng.normal(size=(3, 2, 7, 6, 5)))
+    kernel = jnp.asarray(rng.normal(size=(k, k, 5, 4)))
+    bias = jnp.asarray(rng.normal(size=(4,)))
+    w = jnp.asarray(rng.normal(size=(2, 7, 6, 4)))
+
+    def loss(conv_fn, kernel, bias, x):
+        def body(h, xt):
+            y = conv_fn(xt + 0.1 * h, kernel, bias)
+            return jnp.tanh(y[..., :1]) * 0.5, jnp.sum(y * w)
+        return jax.lax.scan(body, jnp.zeros((2, 7, 6, 1)), x)[1].sum()
+
+    ref = jax.value_and_grad(lambda *a: loss(layers.conv, *a), argnums=(0, 1, 2))(kernel, bias, x)
+    got = jax.value_and_grad(lambda *a: loss(layers.conv_same_fast, *a),
+                             argnums=(0, 1, 2))(kernel, bias, x)
+    for a, b in zip(jax.tree_util.tree_leaves(got), jax.tree_util.tree_leaves(ref)):
+        np.testing.assert_allclose(a, b, rtol=1e-11, atol=1e-11)
+    check_grads(layers.conv_same_fast, (x[0], kernel, bias), order=1, modes=("rev",),
+                eps=1e-6, atol=1e-6, rtol=1e-6)
+
+
 def test_custom_conv_backward_equals_autodiff(x64):
     """The custom-VJP convolutions give plain autodiff's gradients through a rolled scan."""
     grads = []

@@ -88,16 +88,7 @@ def _fast_bwd(res, g):
     xp, kernel = res
     k = kernel.shape[0]
     p = (k - 1) // 2
-    # The kernel gradient dk[dy,dx,c,o] = sum_{b,y,x} xp[b,y+dy,x+dx,c] g[b,y,x,o] is a
-    # VALID convolution of the padded input, channels as its batch and the batch as its
-    # features, with the output gradient as a [h,w,B,o] kernel; in NHWC/HWIO layout
-    # (explicit transposes) XLA:CPU runs it 1.4x faster than nine per-tap matmuls,
-    # whose [B*h*w,C]^T [B*h*w,C] shape it does at half the rate of a convolution
-    # (docs/performance.md, "Training speed").
-    dk = jax.lax.conv_general_dilated(xp.transpose(3, 1, 2, 0),
-                                      g.astype(xp.dtype).transpose(1, 2, 0, 3), (1, 1),
-                                      "VALID", dimension_numbers=("NHWC", "HWIO", "NHWC"))
-    dk = dk.transpose(1, 2, 0, 3)
+    dk = _kernel_grad(xp, g)
     flipped = jnp.flip(kernel, (0, 1)).transpose(0, 1, 3, 2)
     gp = jnp.pad(g, ((0, 0), (p, p), (p, p), (0, 0)))
     dxp = conv(gp, flipped.astype(g.dtype))  # gradient w.r.t. the padded input
@@ -108,9 +99,53 @@ def _fast_bwd(res, g):
 conv_edge_fast.defvjp(_fast_fwd, _fast_bwd)
 
 
+def _kernel_grad(xp, g):
+    """``dk[dy,dx,c,o] = sum_{b,y,x} xp[b,y+dy,x+dx,c] g[b,y,x,o]``, the kernel gradient
+    of a stride-1 VALID convolution of ``xp``: itself a VALID convolution, channels as
+    its batch and the batch as its features, with ``g`` as a ``[h,w,B,o]`` kernel. In
+    NHWC/HWIO layout (explicit transposes) XLA:CPU runs it 1.4x faster than one matmul
+    per kernel tap, whose ``[B*h*w,C]^T [B*h*w,C]`` shape it does at half the rate of
+    a convolution (docs/performance.md, "Training speed")."""
+    dk = jax.lax.conv_general_dilated(xp.transpose(3, 1, 2, 0),
+                                      g.astype(xp.dtype).transpose(1, 2, 0, 3), (1, 1),
+                                      "VALID", dimension_numbers=_DN)
+    return dk.transpose(1, 2, 0, 3)
+
+
+@jax.custom_vjp
+def conv_same_fast(x, kernel, bias):
+    """``conv(x, kernel, bias)`` (SAME zero padding, stride 1, odd kernel) with the
+    standard-layout backward of ``conv_edge_fast``: inside a rolled ``lax.scan``
+    (recurrent models' training) XLA:CPU's autodiff backward of a convolution takes a
+    slow path. Values and gradients equal ``conv``'s (tested in float64)."""
+    return conv(x, kernel, bias)
+
+
+def _same_fwd(x, kernel, bias):
+    return conv(x, kernel, bias), (x, kernel)
+
+
+def _same_bwd(res, g):
+    x, kernel = res
+    p = (kernel.shape[0] - 1) // 2
+    q = (kernel.shape[1] - 1) // 2
+    xp = jnp.pad(x, ((0, 0), (p, p), (q, q), (0, 0)))
+    dk = _kernel_grad(xp, g)
+    flipped = jnp.flip(kernel, (0, 1)).transpose(0, 1, 3, 2)
+    dx = conv(g, flipped.astype(g.dtype))  # SAME: the adjoint of a zero-padded SAME conv
+    return dx.astype(x.dtype), dk.astype(kernel.dtype), g.sum((0, 1, 2)).astype(kernel.dtype)
+
+
+conv_same_fast.defvjp(_same_fwd, _same_bwd)
+
+
 def conv_same(x, p, stride=1):
-    """A zero-padded ('SAME') convolution with a ``{"kernel", "bias"}`` dict."""
-    return conv(x, p["kernel"], p["bias"], stride=stride)
+    """A zero-padded ('SAME') convolution with a ``{"kernel", "bias"}`` dict; stride 1
+    with an odd kernel goes through ``conv_same_fast``."""
+    k = p["kernel"]
+    if stride == 1 and k.shape[0] % 2 and k.shape[1] % 2 and p.get("bias") is not None:
+        return conv_same_fast(x, k, p["bias"])
+    return conv(x, k, p["bias"], stride=stride)
 
 
 def mlp_init(key, sizes):
