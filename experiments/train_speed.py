@@ -2,10 +2,11 @@
 one process, round-robin (a, b, c, ..., a, b, c, ...) so every variant sees the same
 machine; the ratios are what to read (docs/performance.md, "Training speed").
 
-Variants: the plain scan of ``step`` (``hoist`` off), the carry-independent
-preparation hoisted out of the scan (``Model.prepare``, the default), and the hoisted
-step under ``jax.checkpoint`` policies (``rollout.REMAT_POLICIES``, full remat). Then,
-for the default variant, training frames per second over batch sizes and crops.
+Variants: the plain scan of ``step`` (the default), the carry-independent
+preparation hoisted out of the scan (``Model.prepare``), and the hoisted step under
+``jax.checkpoint`` policies (``rollout.REMAT_POLICIES``, full remat). Then, for the
+default variant, training frames per second over batch sizes and crops, and the
+comparison systems' steps with and without the custom SAME-convolution backward.
 
     python experiments/train_speed.py                     # the bench's workload
     taskset -c 1 python experiments/train_speed.py --out docs/results/train-speed-1core

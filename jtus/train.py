@@ -56,7 +56,7 @@ def create_train_state(params, optimizer) -> TrainState:
 
 
 def make_train_step(model, loss_fn, optimizer, *, loss_frames, keep_at=None, remat=False,
-                    unroll=1, jit=True, hoist=True):
+                    unroll=1, jit=True, hoist=False):
     """``(train_state, carry, frames [T,B,...], targets [T,B,H,W,3]) ->
     (train_state, next carry, stats)``.
 
@@ -65,9 +65,9 @@ def make_train_step(model, loss_fn, optimizer, *, loss_frames, keep_at=None, rem
     ``keep_at = k1`` when k1 < k2; the returned carry (gradient cut) starts the next
     window.
 
-    ``hoist``: run the model's ``prepare`` for the whole window before the scan
-    (``rollout.window_loss``); False scans the plain step (the same values; for
-    measurements, docs/performance.md).
+    ``hoist``: run the model's ``prepare`` before the scan (``rollout.window_loss``;
+    the same values). Off by default: on XLA:CPU it measured no faster than scanning
+    the plain step (0.96-1.06x, docs/performance.md, "Training speed").
     """
     step, prepare = rollout.parts(model) if hoist else (model.step, None)
 
@@ -222,9 +222,8 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
     accept = recipe.accept_for(config)
     step_fn = make_train_step(model, loss_fn, opt, loss_frames=plan.loss_frames,
                               keep_at=plan.keep_at, remat=config.remat)
-    advance, prepare = rollout.parts(model)
     eval_loss = jax.jit(lambda p, c, f, t: rollout.window_loss(
-        advance, loss_fn, p, c, f, t, loss_frames=plan.loss_frames, prepare=prepare)[0])
+        model.step, loss_fn, p, c, f, t, loss_frames=plan.loss_frames)[0])
     with Dataset(config.dataset) as ds:
         val_rng = np.random.default_rng([config.seed, 10**6])
         val_crops = [jax.tree_util.tree_map(jnp.asarray, ds.crops(
