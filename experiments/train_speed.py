@@ -74,7 +74,7 @@ def comparison_step(name, factor, crop, batch, seq, loss_frames, fast=True):
         step = train.make_train_step(model, losses.make(models.spec(name).loss, factor), opt,
                                      loss_frames=loss_frames)
         h = crop // factor
-        frames = [bench._inputs(h, h, batch, seed=t) for t in range(seq)]
+        frames = [bench.random_frame(h, h, batch, seed=t) for t in range(seq)]
         frames = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *frames)
         frames = frames._replace(reset=jnp.zeros((seq, batch), bool).at[0].set(True))
         targets = jnp.asarray(np.random.default_rng(9).uniform(size=(seq, batch, crop, crop, 3)),

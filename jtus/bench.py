@@ -92,7 +92,9 @@ def peaks(repeats):
     return out
 
 
-def _inputs(h, w, b=1, seed=0):
+def random_frame(h, w, b=1, seed=0):
+    """A random LR ``Frame`` (``b`` x ``h`` x ``w``) for timings: colour and jitter
+    uniform, depth in [0.5, 1), motion normal with 0.5 LR pixels' spread."""
     from jtus.frame import Frame
     r = np.random.default_rng(seed)
     return Frame(jnp.asarray(r.uniform(size=(b, h, w, 3)), jnp.float32),
@@ -121,7 +123,7 @@ def infer_workload(name, factor, size, dtype="float32", **overrides):
     over = dict({"dtype": dtype} if has_dtype else {}, **overrides)
     model = models.build(name, factor, **over)
     params = model.init(jax.random.PRNGKey(0))
-    frame = _inputs(H // factor, W // factor)
+    frame = random_frame(H // factor, W // factor)
     state = [model.init_state(frame)]
     step = jax.jit(model.step, donate_argnums=(1,))
 
@@ -177,7 +179,7 @@ def train_workload(factor, crop, batch, seq, loss_frames, remat=False, unroll=1,
     step = train.make_train_step(model, losses.make("l1", factor), opt, loss_frames=loss_frames,
                                  remat=remat, unroll=unroll, hoist=hoist)
     h = crop // factor
-    frames = [_inputs(h, h, batch, seed=t) for t in range(seq)]
+    frames = [random_frame(h, h, batch, seed=t) for t in range(seq)]
     frames = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *frames)
     frames = frames._replace(reset=jnp.zeros((seq, batch), bool).at[0].set(True))
     targets = jnp.asarray(np.random.default_rng(9).uniform(size=(seq, batch, crop, crop, 3)),
