@@ -447,8 +447,21 @@ def main(argv=None):
                    help="also time the PyTorch reference")
     p.add_argument("--json", action="store_true")
     p.add_argument("--out", help="write the JSON report here")
+    p.add_argument("--train-preset", metavar="NAME",
+                   help="time the training step of a jtus.train preset (e.g. diverse, the "
+                        "shipped weights' recipe): its crop, batch, window and loss frames "
+                        "replace the --train-* values")
     args = p.parse_args(argv)
     args.argv = argv
+    if args.train_preset:
+        from jtus import config as run_config, recipe
+        if args.train_preset not in run_config.PRESETS:
+            p.error(f"--train-preset: expected one of {sorted(run_config.PRESETS)}, "
+                    f"got {args.train_preset!r}")
+        cfg = run_config.PRESETS[args.train_preset]
+        plan = recipe.plan(cfg)
+        args.train_crop, args.train_batch = cfg.crop, cfg.batch
+        args.train_seq, args.train_loss_frames = plan.window, plan.loss_frames
     report = run(args)
     if args.out:
         with open(args.out, "w") as fh:

@@ -74,3 +74,19 @@ def test_profile_classifies_ops_by_their_jax_origin():
     assert classify("wrapped_scatter.2", *ops["wrapped_scatter.2"]) == (
         "reprojection", "backward", "scatter")
     assert classify("copy.7", "copy", "") == ("other", "forward", "copy/slice")
+
+
+def test_bench_train_preset_sets_the_recipe_workload(capsys):
+    import pytest
+
+    from jtus import config, recipe
+    assert bench.main(["--what", "train", "--train-preset", "tiny", "--factors", "4",
+                       "--repeats", "1", "--no-torch", "--json"]) == 0
+    tr = json.loads(capsys.readouterr().out)["train"]
+    cfg = config.PRESETS["tiny"]
+    plan = recipe.plan(cfg)
+    assert (tr["crop"], tr["batch"], tr["seq"], tr["loss_frames"]) == (
+        cfg.crop, cfg.batch, plan.window, plan.loss_frames)
+    with pytest.raises(SystemExit):
+        bench.main(["--what", "train", "--train-preset", "nope", "--no-torch"])
+    assert "--train-preset: expected one of" in capsys.readouterr().err
