@@ -43,7 +43,7 @@ def bind(config, step, init=None, init_state=None, prepare=None, advance=None) -
     model without parameters (or without state) leaves ``init`` (``init_state``) out
     and gets ``{}`` (``()``). ``prepare(frame, config)`` and ``advance(params, state,
     prepared, config)``, given together, split ``step`` (``Model``). The bound
-    functions go through ``exposed`` (HDR colour)."""
+    functions go through ``exposed_parts`` (HDR colour)."""
     hdr = getattr(config, "hdr", False)
     if (prepare is None) != (advance is None):
         raise ValueError("prepare, advance: give both or neither")
@@ -97,11 +97,6 @@ def exposed_parts(prepare, advance, hdr):
 
     return prep, adv
 
-
-def exposed(step, hdr):
-    """``step(params, state, frame)`` behind the HDR edge of ``exposed_parts``."""
-    prep, adv = exposed_parts(lambda frame: frame, step, hdr)
-    return lambda params, state, frame: adv(params, state, prep(frame))
 
 
 class Cost(NamedTuple):

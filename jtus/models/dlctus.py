@@ -51,7 +51,7 @@ DOWN = 4  # the network works at 1/4 of the HR resolution
 @dataclasses.dataclass(frozen=True)
 class Config:
     factor: int = 4
-    hdr: bool = False        # trained on tone-mapped HDR colour (base.exposed)
+    hdr: bool = False        # trained on tone-mapped HDR colour (base.exposed_parts)
     near: float = NEAR
     far: float = FAR
     warp: str = "bicubic"        # any jtus.sampling method

@@ -14,7 +14,7 @@ from jtus.models.base import Cost, Model, Spec, bind
 @dataclasses.dataclass(frozen=True)
 class Config:
     factor: int = 4
-    hdr: bool = False        # trained on tone-mapped HDR colour (base.exposed)
+    hdr: bool = False        # trained on tone-mapped HDR colour (base.exposed_parts)
     method: str = "bilinear"  # or "bicubic" (Keys a=-0.75), any jtus.sampling method
 
     def __post_init__(self):

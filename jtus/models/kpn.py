@@ -38,7 +38,7 @@ SWITCHED = ("conv2", "conv3", "kernel")
 @dataclasses.dataclass(frozen=True)
 class Config:
     factor: int = 4
-    hdr: bool = False        # trained on tone-mapped HDR colour (base.exposed)
+    hdr: bool = False        # trained on tone-mapped HDR colour (base.exposed_parts)
     width: int = 12
     jitter: str = "thesis"   # the sequence whose index selects the weight set
     near: float = NEAR

@@ -31,7 +31,7 @@ P = 5
 @dataclasses.dataclass(frozen=True)
 class Config:
     factor: int = 4
-    hdr: bool = False        # trained on tone-mapped HDR colour (base.exposed)
+    hdr: bool = False        # trained on tone-mapped HDR colour (base.exposed_parts)
     hidden: tuple = (50, 50)
     gamma: float = 1.0        # residual boost: sign(r) |r|^(1/gamma)
     slope: float = 0.01       # leaky ReLU

@@ -43,7 +43,7 @@ FEATURES = 12  # 8 learned + RGB-D
 @dataclasses.dataclass(frozen=True)
 class Config:
     factor: int = 4
-    hdr: bool = False        # trained on tone-mapped HDR colour (base.exposed)
+    hdr: bool = False        # trained on tone-mapped HDR colour (base.exposed_parts)
     frames: int = 4
     extract: tuple = (32, 32, 8)
     reweight: tuple = (32, 32)

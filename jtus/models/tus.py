@@ -40,7 +40,7 @@ COUNTS = ("frames", "samples")
 @dataclasses.dataclass(frozen=True)
 class Config:
     factor: int = 4
-    hdr: bool = False        # trained on tone-mapped HDR colour (base.exposed)
+    hdr: bool = False        # trained on tone-mapped HDR colour (base.exposed_parts)
     warp: str = "bicubic"
     warp_a: float = -0.75
     rectify: str = "clamp"
