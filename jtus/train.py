@@ -332,6 +332,10 @@ def config_from_args(args) -> Config:
     if "model" in over and "loss" not in over:  # a model's own loss (KPN's masked loss)
         over["loss"] = models.spec(over["model"]).loss
     config = dataclasses.replace(base, **over)
+    if config.mode == "tbptt" and "loss_frames" in over and config.loss_frames != config.k1:
+        raise ValueError(f"loss_frames: tbptt mode takes the loss on each window's last k1="
+                         f"{config.k1} frames, so --loss-frames {config.loss_frames} would be "
+                         f"ignored; pass --k1 instead, or --mode bptt")
     if args.warp:
         config = dataclasses.replace(config, model_overrides=(("warp", args.warp),))
     return config

@@ -261,17 +261,42 @@ def test_kpn_input_preparation():
         np.asarray(frame.motion, np.float64), half, f), rtol=0, atol=1e-5)
 
 
-def _mlp_numpy(params, color, depth, f, gamma, slope, near, far):
+def _dejitter_numpy(img, jx, jy):
+    """``img [h,w,C]`` read at the pixel centres of a frame sampled at ``(j + jx, i +
+    jy)``: bilinear at index-space position ``(j + 0.5 - jx, i + 0.5 - jy)``, indices
+    clamped to the edge."""
+    h, w = img.shape[:2]
+    out = np.zeros(img.shape, np.float64)
+    c = lambda a, n: min(max(a, 0), n - 1)  # noqa: E731
+    for i in range(h):
+        for j in range(w):
+            u, v = j + 0.5 - jx, i + 0.5 - jy
+            j0, i0 = int(np.floor(u)), int(np.floor(v))
+            tx, ty = u - j0, v - i0
+            row = lambda r: ((1 - tx) * img[c(r, h), c(j0, w)]  # noqa: E731
+                             + tx * img[c(r, h), c(j0 + 1, w)])
+            out[i, j] = (1 - ty) * row(i0) + ty * row(i0 + 1)
+    return out
+
+
+def _mlp_numpy(params, color, depth, f, gamma, slope, near, far, jitter=None, mode="ignore"):
     """Spencer's MLP upscaler written out per LR pixel in numpy (float64): the 5x5
     colour patch of each channel and the 5x5 linear-depth patch, both minus their
     means, boosted by sign(r)|r|^(1/gamma); two leaky-ReLU layers; f*f outputs plus the
     colour mean, placed at sub-pixel (dy, dx) = divmod(k, f) (jtus's choices: raster
-    patch order, colour before depth, edge-replicated borders)."""
+    patch order, colour before depth, edge-replicated borders). ``mode="input"``: the
+    offset of ``jitter [B,2]`` from the pixel centre (x, y) follows as two more inputs;
+    ``"dejitter"``: colour and linear depth are first read at the pixel centres."""
     from jtus.data.conventions import linearize_depth
 
     B, h, w, _ = color.shape
     lin = linearize_depth(depth[..., 0].astype(np.float64), near, far)
-    pc = np.pad(color.astype(np.float64), ((0, 0), (2, 2), (2, 2), (0, 0)), mode="edge")
+    color = color.astype(np.float64)
+    if mode == "dejitter":
+        color = np.stack([_dejitter_numpy(color[b], *jitter[b]) for b in range(B)])
+        lin = np.stack([_dejitter_numpy(lin[b, ..., None], *jitter[b])[..., 0]
+                        for b in range(B)])
+    pc = np.pad(color, ((0, 0), (2, 2), (2, 2), (0, 0)), mode="edge")
     pd = np.pad(lin, ((0, 0), (2, 2), (2, 2)), mode="edge")
     Ws = [(np.asarray(lyr["kernel"], np.float64), np.asarray(lyr["bias"], np.float64))
           for lyr in params["layers"]]
@@ -284,7 +309,9 @@ def _mlp_numpy(params, color, depth, f, gamma, slope, near, far):
                 for c in range(3):
                     cpatch = pc[b, i:i + 5, j:j + 5, c].reshape(-1)
                     v = np.concatenate([boost(cpatch - cpatch.mean()),
-                                        boost(dpatch - dpatch.mean())])
+                                        boost(dpatch - dpatch.mean())]
+                                       + ([np.asarray(jitter[b], np.float64) - 0.5]
+                                          if mode == "input" else []))
                     for k, (W, bias) in enumerate(Ws):
                         v = v @ W + bias
                         if k < len(Ws) - 1:
@@ -298,17 +325,19 @@ def _mlp_numpy(params, color, depth, f, gamma, slope, near, far):
 
 def test_mlp_forward_and_gamma_against_numpy():
     """Catches: gamma ignored or applied as r^gamma, the mean not added back, sub-pixels
-    shuffled in another order."""
+    shuffled in another order, the jitter input dropped, swapped or not centred, the
+    de-jittering read on the wrong side or left out for depth."""
     from jtus.models import mlp
 
-    frames, _ = seqdata.to_jax(seqdata.sequence(T=1, B=1, h=6, w=5))
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=1, B=2, h=6, w=5))
     frame = _at(frames, 0)
-    for gamma in (1.0, 2.2):
-        config = mlp.Config(factor=4, gamma=gamma)
+    frame = frame._replace(jitter=jnp.asarray([[0.125, 0.875], [0.625, 0.25]], jnp.float32))
+    for gamma, jit in ((1.0, "dejitter"), (2.2, "dejitter"), (1.0, "input"), (1.0, "ignore")):
+        config = mlp.Config(factor=4, gamma=gamma, jitter=jit)
         params = mlp.init(jax.random.PRNGKey(1), config)
         got = np.asarray(mlp.step(params, (), frame, config)[0])
         want = _mlp_numpy(params, np.asarray(frame.color), np.asarray(frame.depth), 4, gamma,
-                          config.slope, config.near, config.far)
+                          config.slope, config.near, config.far, np.asarray(frame.jitter), jit)
         np.testing.assert_allclose(got, want, rtol=0, atol=5e-7)  # float32: 2.1e-7 measured
 
 

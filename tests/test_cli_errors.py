@@ -123,3 +123,17 @@ def test_values_written_by_evaluate_and_upsample(tiny_data, tmp_path):
         ch, _ = exr.read_exr(frames_dir / f)
         img = np.stack([ch[c] for c in "RGB"], -1)
         np.testing.assert_allclose(img, want, rtol=0, atol=1e-6)  # measured: 0 (dyadic jitter)
+
+
+def test_train_refuses_loss_frames_that_tbptt_would_ignore(tiny_data, tmp_path, capsys):
+    """tbptt takes the loss on each window's last k1 frames: an explicit --loss-frames
+    that differs is refused (it was silently ignored), one that agrees is accepted."""
+    from jtus import train
+
+    work = tmp_path / "run"
+    base = ["--preset", "tiny", "--dataset", tiny_data, "--workdir", str(work), "--quiet",
+            "--no-eval", "--mode", "tbptt", "--seq-len", "4", "--k1", "2", "--k2", "2"]
+    _refused(capsys, train.main, base + ["--loss-frames", "1"], "loss_frames", "k1=2")
+    assert not work.exists()
+    args = train._parser().parse_args(base + ["--loss-frames", "2"])
+    assert train.config_from_args(args).loss_frames == 2

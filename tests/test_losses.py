@@ -86,3 +86,49 @@ def test_loss_names_and_theta_checked():
         losses.make("huber", 2)
     with pytest.raises(ValueError, match="theta"):
         losses.make("st-linear", 2, theta=1.5)
+
+
+def _kpn_loss_numpy(out, target, prev_out, prev_target, color, jitter, f, has_prev):
+    """Herveau et al.'s loss (sec. 5.3) written out in numpy (float64), with zero
+    motion (the previous error then needs no warp): the alias mask is the summed
+    absolute channel difference between the jitter-aligned input and the reference,
+    times the sensitivity 4, clipped to [0, 1] and dilated 3x3 (the maximum over the
+    in-frame neighbours); every term is weighted per pixel by 1.5 M + (1 - M); the
+    gradient term compares forward differences along y and x on the pixels that have
+    both; the temporal term compares the current error with the previous one. Weights
+    1, 1, 4 (losses.kpn_loss's docstring says why 4)."""
+    from tests.seqdata import jau_reference
+
+    jau = jau_reference(color, jitter, f)
+    m = np.clip(4.0 * np.abs(jau - target).sum(-1), 0.0, 1.0)
+    H, W = m.shape[1:]
+    pad = np.pad(m, ((0, 0), (1, 1), (1, 1)), mode="edge")
+    m = np.max([pad[:, dy:dy + H, dx:dx + W] for dy in range(3) for dx in range(3)], 0)
+    wgt = (1.5 * m + (1 - m))[..., None]
+    ref = np.mean(wgt * np.abs(out - target) * np.ones(3))
+    d = out - target
+    gy = d[:, 1:, :-1] - d[:, :-1, :-1]
+    gx = d[:, :-1, 1:] - d[:, :-1, :-1]
+    grad = np.mean(wgt[:, :-1, :-1] * (np.abs(gy) + np.abs(gx)))
+    prev = (prev_out - prev_target) if has_prev else 0.0
+    temporal = np.mean(wgt * np.abs(d - prev))
+    return ref + grad + 4.0 * temporal
+
+
+@pytest.mark.parametrize("has_prev", [True, False])
+def test_kpn_loss_against_its_formula(rng, has_prev):
+    """Catches: the mask not dilated or not clipped, the boost on the wrong side of M,
+    the gradient term dropped or cropped differently,
+    the temporal term without the previous error, a weight changed."""
+    f, b, h, w = 2, 2, 5, 6
+    shape = (b, h * f, w * f, 3)
+    out, target, prev_out, prev_target = (rng.uniform(size=shape) for _ in range(4))
+    color = rng.uniform(size=(b, h, w, 3))
+    jitter = np.array([[0.25, 0.75], [0.6, 0.1]])
+    frame = Frame(jnp.asarray(color, jnp.float32), jnp.zeros((b, h, w, 1)),
+                  jnp.zeros((b, h, w, 2)), jnp.asarray(jitter, jnp.float32))
+    got = losses.kpn_loss(f)(*(jnp.asarray(x, jnp.float32) for x in
+                               (out, target, prev_out, prev_target)),
+                             jnp.asarray(has_prev), frame)
+    want = _kpn_loss_numpy(out, target, prev_out, prev_target, color, jitter, f, has_prev)
+    np.testing.assert_allclose(float(got), want, rtol=2e-6)  # float32 means of O(1) terms
