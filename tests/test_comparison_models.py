@@ -42,7 +42,8 @@ def test_parameter_counts():
          + phases * (conv(3, 12, 12) + conv(5, 12, 12) + conv(5, 12, 50)))
     assert count(kpn.init) == k
     assert count(mlp.init) == (50 * 50 + 50) * 2 + 50 * 16 + 16
-    assert count(mlp.init, mlp.Config(jitter="input")) == (52 * 50 + 50) + (50 * 50 + 50) + 50 * 16 + 16
+    assert count(mlp.init, mlp.Config(jitter="input")) == ((52 * 50 + 50) + (50 * 50 + 50)
+                                                           + 50 * 16 + 16)
     fast = count(nsrr.init, nsrr.Config(fast=True))
     assert fast < 0.4 * 547767
 

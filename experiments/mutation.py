@@ -1,0 +1,139 @@
+"""Mutation testing of the numerics core with mutmut (issue 18): every module below is
+mutated in a scratch copy of the repository (its git-tracked files) and each mutant is
+run against that module's focused test selection; the kill rate per module is written
+to ``docs/results/mutation/results.md``.
+
+    python experiments/mutation.py                          # every module (hours)
+    python experiments/mutation.py --modules jtus/metrics.py --workdir runs/mutation
+
+Two facts about JAX shape the mutmut configuration (docs/testing.md):
+- mutmut 3 forks a child per mutant. A child forked from a process whose XLA runtime
+  already started its thread pools can deadlock (every mutant then "times out"), so
+  the fork server imports nothing (``process_isolation = "forkserver"``,
+  ``forkserver_warmup = "none"``) and each child imports JAX itself.
+- mutmut switches mutants inside a function by a trampoline that reads an environment
+  variable at call time; a ``jax.jit`` cache filled before the switch would keep
+  running the original. The runs set ``JAX_DISABLE_JIT=1`` (op-by-op execution of the
+  same mathematics; the tests' inputs are small), so no compiled program outlives a
+  mutant.
+
+Mutants shown to be equivalent are listed, with why, in ``EQUIVALENT`` below and are
+left out of the rate.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import os
+import re
+import shutil
+import subprocess
+import sys
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+# the module -> its focused tests (the ones that check its values)
+TESTS = {
+    "jtus/metrics.py": ["tests/test_metrics.py"],
+    "jtus/losses.py": ["tests/test_losses.py", "tests/test_blind_spots.py"],
+    "jtus/rollout.py": ["tests/test_rollout.py"],
+    "jtus/sampling/warp.py": ["tests/test_warp_torch.py", "tests/test_warp_properties.py"],
+    "jtus/sampling/upsample.py": ["tests/test_upsample_jitter.py", "tests/test_warp_torch.py"],
+    "jtus/sampling/jitter.py": ["tests/test_upsample_jitter.py", "tests/test_conventions.py"],
+    "jtus/sampling/color.py": ["tests/test_hdr.py", "tests/test_blind_spots.py"],
+    "jtus/models/dlctus.py": ["tests/test_dlctus_torch.py", "tests/test_blind_spots.py"],
+    "jtus/models/tus.py": ["tests/test_baselines.py", "tests/test_blind_spots.py"],
+    "jtus/models/kpn.py": ["tests/test_comparison_models.py", "tests/test_blind_spots.py"],
+    "jtus/models/nsrr.py": ["tests/test_comparison_models.py", "tests/test_blind_spots.py"],
+    "jtus/models/mlp.py": ["tests/test_comparison_models.py", "tests/test_blind_spots.py"],
+}
+
+# "module.x_function__mutmut_N": why it cannot change behaviour
+EQUIVALENT: dict[str, str] = {}
+
+OUT = os.path.join(ROOT, "docs", "results", "mutation", "results.md")
+
+
+def scratch_copy(dest):
+    """The git-tracked files of the repository (no weights history, no data) in ``dest``."""
+    files = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True,
+                           check=True).stdout.split()
+    for f in files:
+        if f.startswith(("experiments/checkpoints/", "docs/")):
+            continue
+        os.makedirs(os.path.join(dest, os.path.dirname(f)), exist_ok=True)
+        shutil.copy2(os.path.join(ROOT, f), os.path.join(dest, f))
+
+
+def config_block(module, tests):
+    q = lambda xs: "[" + ", ".join(f'"{x}"' for x in xs) + "]"  # noqa: E731
+    return (f"\n[tool.mutmut]\npaths_to_mutate = {q([module])}\ntests_dir = {q(tests)}\n"
+            f'pytest_add_cli_args = ["-n", "0", "-p", "no:cacheprovider", "-q"]\n'
+            f'also_copy = ["tests/", "jtus/"]\ntimeout_constant = 60.0\n'
+            f'timeout_multiplier = 5.0\nprocess_isolation = "forkserver"\n'
+            f'forkserver_warmup = "none"\n')
+
+
+def run_module(module, workdir, max_children):
+    dest = os.path.join(workdir, module.replace("/", "_").removesuffix(".py"))
+    if not os.path.exists(os.path.join(dest, "pyproject.toml")):
+        scratch_copy(dest)
+        with open(os.path.join(dest, "pyproject.toml"), "a") as fh:
+            fh.write(config_block(module, TESTS[module]))
+    env = dict(os.environ, JAX_DISABLE_JIT="1")
+    t0 = time.perf_counter()
+    subprocess.run(["mutmut", "run", "--max-children", str(max_children)], cwd=dest, env=env,
+                   stdout=subprocess.DEVNULL, check=False)  # resumes where it stopped
+    seconds = time.perf_counter() - t0
+    res = subprocess.run(["mutmut", "results", "--all", "true"], cwd=dest, env=env,
+                         capture_output=True, text=True, check=True).stdout
+    status = dict(re.findall(r"^\s+(\S+): (.+)$", res, re.M))
+    return status, seconds
+
+
+def summarize(status):
+    counts = collections.Counter(v for k, v in status.items() if k not in EQUIVALENT)
+    tested = sum(n for s, n in counts.items() if s not in ("not checked", "skipped"))
+    killed = counts["killed"]  # a timeout is not counted as a kill (see the note below)
+    return counts, tested, killed
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--modules", nargs="+", default=list(TESTS), choices=list(TESTS))
+    p.add_argument("--workdir", default=os.path.join(ROOT, "runs", "mutation"))
+    p.add_argument("--max-children", type=int, default=2)
+    p.add_argument("--out", default=OUT)
+    args = p.parse_args(argv)
+    if shutil.which("mutmut") is None:
+        sys.exit("error: mutmut is not installed (pip install mutmut)")
+    rows = []
+    for m in args.modules:
+        status, seconds = run_module(m, args.workdir, args.max_children)
+        counts, tested, killed = summarize(status)
+        survivors = sorted(k for k, v in status.items()
+                           if v == "survived" and k not in EQUIVALENT)
+        rate = f"{100 * killed / tested:.0f}%" if tested else "n/a"
+        rows.append((m, len(status), tested, killed, rate, seconds, survivors))
+        print(f"{m}: {killed}/{tested} killed ({rate}), {dict(counts)}, {seconds:.0f} s")
+    os.makedirs(os.path.dirname(args.out), exist_ok=True)
+    with open(args.out, "w") as fh:
+        fh.write("# Mutation testing (mutmut)\n\n| module | mutants | run | killed | kill rate "
+                 "| seconds |\n| --- | --- | --- | --- | --- | --- |\n")
+        for m, n, tested, killed, rate, seconds, _ in rows:
+            fh.write(f"| `{m}` | {n} | {tested} | {killed} | {rate} | {seconds:,.0f} |\n")
+        fh.write("\nA timed-out mutant is not counted as killed: with JAX a hang can be the "
+                 "harness's, not the mutant's. Surviving mutants:\n\n")
+        for m, *_, survivors in rows:
+            fh.write(f"- `{m}`: " + (", ".join(f"`{s}`" for s in survivors) or "none") + "\n")
+        fh.write("\nEquivalent mutants left out: " + (", ".join(
+            f"`{k}` ({v})" for k, v in EQUIVALENT.items()) or "none") + ".\n\nMade by `python "
+            "experiments/mutation.py " + " ".join(argv if argv is not None else sys.argv[1:])
+            + "`.\n")
+
+
+if __name__ == "__main__":
+    main()
