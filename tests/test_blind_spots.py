@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+import pytest
 
 from jtus import losses, rollout, sampling, train
 from jtus.models import dlctus, nsrr
@@ -339,6 +340,8 @@ def test_mlp_forward_and_gamma_against_numpy():
         want = _mlp_numpy(params, np.asarray(frame.color), np.asarray(frame.depth), 4, gamma,
                           config.slope, config.near, config.far, np.asarray(frame.jitter), jit)
         np.testing.assert_allclose(got, want, rtol=0, atol=5e-7)  # float32: 2.1e-7 measured
+    with pytest.raises(ValueError, match="jitter"):
+        mlp.Config(jitter="centre")
 
 
 def test_nsrr_ycbcr_option_converts_at_both_ends():

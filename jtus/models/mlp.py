@@ -33,6 +33,7 @@ from jtus.models import layers
 from jtus.models.base import Cost, Model, Spec, bind
 
 P = 5
+JITTER = ("ignore", "input", "dejitter")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -43,6 +44,10 @@ class Config:
     gamma: float = 1.0        # residual boost: sign(r) |r|^(1/gamma)
     slope: float = 0.01       # leaky ReLU
     jitter: str = "dejitter"  # ignore | input | dejitter (module docstring)
+
+    def __post_init__(self):
+        if self.jitter not in JITTER:
+            raise ValueError(f"jitter: expected one of {JITTER}, got {self.jitter!r}")
     near: float = NEAR
     far: float = FAR
 
@@ -52,12 +57,7 @@ def init(key, config: Config = Config()):
     return {"layers": layers.mlp_init(key, sizes)}
 
 
-JITTER = ("ignore", "input", "dejitter")
-
-
 def _inputs(config):
-    if config.jitter not in JITTER:
-        raise ValueError(f"jitter: expected one of {JITTER}, got {config.jitter!r}")
     return 2 * P * P + (2 if config.jitter == "input" else 0)
 
 
@@ -68,7 +68,6 @@ def _boost(r, gamma):
 def step(params, state, frame: Frame, config: Config = Config()):
     color = frame.color.astype(jnp.float32)
     depth = linearize_depth(frame.depth.astype(jnp.float32), config.near, config.far)
-    _inputs(config)
     if config.jitter == "dejitter":  # resampled to the pixel centres
         jit = frame.jitter.astype(jnp.float32)
         color = sampling.jitter_aligned_upsample(color, jit, 1)
