@@ -64,7 +64,7 @@ def table(root="."):
         for f in FACTORS:
             got = find(m, f, root)
             if got is None:
-                lines.append(f"| {m} | {f}x | not started on the diverse data | | | | | | |")
+                lines.append(f"| {m} | {f}x | no diverse-data log committed | | | | | | |")
                 continue
             rows, planned, src = got
             s = summarize(rows, planned)

@@ -141,11 +141,11 @@ def kpn_loss(factor, weights=(1.0, 1.0, 4.0), alias_boost=1.5, sensitivity=4.0):
     The weights follow the paper's rule, not its number: the temporal term is scaled up
     by how much smaller it is than the reference term ("roughly ten times" in their
     anti-aliasing setting, from which jtus first took a weight of 10), so that it weighs
-    most, then the gradient term, then the reference term (their Figure 7). Up-sampling 4x on the ``diverse``
-    data, the unweighted terms of an initialized KPN are 0.075, 0.083 and 0.024 (about
-    3x, not 10x, apart; docs/comparison.md): 4 keeps their order, where 10 let the
-    temporal term outweigh the other two together and trained a network whose
-    validation PSNR fell while its loss did."""
+    most, then the gradient term, then the reference term (their Figure 7). Up-sampling
+    4x on the ``diverse`` data, the unweighted terms of an initialized KPN are 0.075,
+    0.083 and 0.024 (about 3x, not 10x, apart; experiments/kpn_loss_terms.py): 4 keeps their
+    order, where 10 let the temporal term outweigh the other two together and trained a
+    network whose validation PSNR fell while its loss did (docs/results/kpn-loss/)."""
     wr, wg, wt = weights
 
     def grad(x):
