@@ -17,6 +17,9 @@ offset from the pixel centre, ``jitter - 0.5``, appended to every patch as two m
 values) and ``"dejitter"`` (the default: colour and depth are first resampled to the
 pixel centres by jitter-aligned bilinear interpolation at factor 1, thesis sec. 4.1.1,
 so the network sees the frame the original was built for).
+
+Training patches are accepted with a probability rising with their gradient
+magnitude (``acceptance``), as in the original's data pipeline.
 """
 
 from __future__ import annotations
@@ -44,12 +47,12 @@ class Config:
     gamma: float = 1.0        # residual boost: sign(r) |r|^(1/gamma)
     slope: float = 0.01       # leaky ReLU
     jitter: str = "dejitter"  # ignore | input | dejitter (module docstring)
+    near: float = NEAR
+    far: float = FAR
 
     def __post_init__(self):
         if self.jitter not in JITTER:
             raise ValueError(f"jitter: expected one of {JITTER}, got {self.jitter!r}")
-    near: float = NEAR
-    far: float = FAR
 
 
 def init(key, config: Config = Config()):
