@@ -114,7 +114,10 @@ def cost(config: Config, H, W) -> Cost:
     sizes = (_inputs(config),) + tuple(config.hidden) + (config.factor ** 2,)
     dense = sum(i * o * 2 + o for i, o in zip(sizes[:-1], sizes[1:])) * lr * 3
     compulsory = 4 * (lr * 4 + H * W * 3)
-    return Cost(dense + lr * 3 * 60, dense, compulsory, compulsory + 4 * 2 * lr * 3 * sum(sizes))
+    # de-jittering: a 4-tap bilinear read (4 multiply-adds) per LR pixel and channel
+    dejitter = lr * 4 * 8 if config.jitter == "dejitter" else 0
+    return Cost(dense + lr * 3 * 60 + dejitter, dense, compulsory,
+                compulsory + 4 * 2 * lr * 3 * sum(sizes))
 
 
 SPECS = (Spec("mlp", make, lambda f: Config(factor=f), cost, trainable=True, accept=acceptance),)
