@@ -5,12 +5,17 @@ the epoch log kept gradient norms (``grad_norm``, ``grad_norm_max`` per epoch in
 ``metrics.json``) are also read from the log: every step of training, not one batch.
 
     python experiments/gradient_norm.py runs/ablation_no_accumulation runs/sweep_theta/L1
+
+Writes ``docs/results/<--name>/result.{md,json}`` (default ``gradient_norm``).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import jax
 import jax.numpy as jnp
@@ -18,6 +23,8 @@ import numpy as np
 
 from jtus import models, recipe, rollout
 from jtus.data.dataset import Dataset
+
+from common import write  # noqa: E402
 
 
 def gradient_norms(workdir, seed=1):
@@ -54,12 +61,20 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("workdirs", nargs="+")
+    p.add_argument("--name", default="gradient_norm", help="docs/results/NAME/")
     args = p.parse_args(argv)
+    rows, data = [], {}
     for w in args.workdirs:
         n = gradient_norms(w)
-        print(f"{w}: gradient norm at initialization {n['init']:.3g}, trained {n['trained']:.3g}")
-        for epoch, mean, top in logged_norms(w):
-            print(f"  epoch {epoch}: mean {mean:.3g}, max {top:.3g} over its steps")
+        logged = logged_norms(w)
+        data[w] = {**n, "logged": logged}
+        last = (f"{logged[-1][1]:.3g} / {logged[-1][2]:.3g} (epoch {logged[-1][0]})"
+                if logged else "not logged")
+        rows.append(f"| `{os.path.relpath(w)}` | {n['init']:.3g} | {n['trained']:.3g} | {last} |")
+    table = "\n".join(["| run | gradient norm at initialization | trained | last epoch's "
+                       "mean / max over its steps |", "| --- | --- | --- | --- |"] + rows)
+    write(args.name, table, data, note="One training batch (seed 1) of each run's own "
+          "recipe; a trained norm of exactly zero is a collapsed network (docs/weights.md).")
 
 
 if __name__ == "__main__":

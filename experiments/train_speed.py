@@ -3,8 +3,10 @@ one process, round-robin (a, b, c, ..., a, b, c, ...) so every variant sees the 
 machine; the ratios are what to read (docs/performance.md, "Training speed").
 
 Variants: the plain scan of ``step`` (the default), the carry-independent
-preparation hoisted out of the scan (``Model.prepare``), and the hoisted step under
-``jax.checkpoint`` policies (``rollout.REMAT_POLICIES``, full remat). Then, for the
+preparation hoisted out of the scan (``Model.prepare``), the hoisted step under
+``jax.checkpoint`` policies (``rollout.REMAT_POLICIES``, full remat), and the
+hand-written reverse-time backward (``remat="reverse"``: the forward keeps each frame's
+carry, the backward recomputes one step at a time under ``jax.vjp``). Then, for the
 default variant, training frames per second over batch sizes and crops, and the
 comparison systems' steps with and without the custom SAME-convolution backward.
 
@@ -46,6 +48,8 @@ VARIANTS = {  # name -> train_workload overrides
     "hoisted + remat dots": {"hoist": True, "remat": "dots"},
     "hoisted + remat dots_no_batch": {"hoist": True, "remat": "dots_no_batch"},
     "hoisted + full remat": {"hoist": True, "remat": True},
+    "full remat": {"hoist": False, "remat": True},
+    "reverse-time backward": {"hoist": False, "remat": "reverse"},  # rollout._segment_reverse
 }
 
 

@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jtus import sampling
+from jtus import files, sampling
 
 SIZES = {"720p": (720, 1280), "1080p": (1080, 1920), "256": (256, 256), "64": (64, 64)}
 
@@ -446,13 +446,19 @@ def main(argv=None):
     p.add_argument("--torch", action=argparse.BooleanOptionalAction, default=True,
                    help="also time the PyTorch reference")
     p.add_argument("--json", action="store_true")
-    p.add_argument("--out", help="write the JSON report here")
+    p.add_argument("--out", help="write the JSON report here (and its tables beside it, "
+                                 "as a .md of the same name)")
     p.add_argument("--train-preset", metavar="NAME",
                    help="time the training step of a jtus.train preset (e.g. diverse, the "
                         "shipped weights' recipe): its crop, batch, window and loss frames "
                         "replace the --train-* values")
     args = p.parse_args(argv)
     args.argv = argv
+    if args.out:
+        try:
+            files.check_out_file(args.out)
+        except ValueError as e:
+            p.error(str(e))
     if args.train_preset:
         from jtus import config as run_config, recipe
         if args.train_preset not in run_config.PRESETS:
@@ -463,10 +469,14 @@ def main(argv=None):
         args.train_crop, args.train_batch = cfg.crop, cfg.batch
         args.train_seq, args.train_loss_frames = plan.window, plan.loss_frames
     report = run(args)
-    if args.out:
-        with open(args.out, "w") as fh:
+    text = markdown(report)
+    if args.out:  # the JSON report, and its table beside it as Markdown
+        with files.atomic_path(args.out) as tmp, open(tmp, "w") as fh:
             json.dump(report, fh, indent=1)
-    print(json.dumps(report, indent=1) if args.json else markdown(report))
+        with files.atomic_path(os.path.splitext(args.out)[0] + ".md") as tmp, \
+                open(tmp, "w") as fh:
+            fh.write(text + "\n")
+    print(json.dumps(report, indent=1) if args.json else text)
     return 0
 
 

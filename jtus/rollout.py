@@ -19,8 +19,10 @@ Modes:
 
 ``remat`` wraps the step in ``jax.checkpoint``: ``True`` saves nothing (every
 intermediate is recomputed in the backward pass), a name from ``REMAT_POLICIES``
-saves what that ``jax.checkpoint_policies`` policy saves. ``unroll`` is passed to ``lax.scan``
-(``True`` unrolls fully: on XLA:CPU a rolled scan over convolutions has a slow
+saves what that ``jax.checkpoint_policies`` policy saves; in ``window_loss``,
+``"reverse"`` is a hand-written reverse-time backward (``_segment_reverse``) that
+stacks only each frame's carry and recomputes one step at a time. ``unroll`` is
+passed to ``lax.scan`` (``True`` unrolls fully: on XLA:CPU a rolled scan over convolutions has a slow
 backward, see ``docs/performance.md``).
 """
 
@@ -30,6 +32,7 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 
 class Carry(NamedTuple):
@@ -135,6 +138,68 @@ def _segment(body, loss_fn, carry, frames, prepared, targets, with_loss, unroll)
     return jax.lax.scan(f, carry, (frames, prepared, targets), unroll=unroll)
 
 
+def _zero_cotangent(x):
+    x = jnp.asarray(x)
+    if jnp.issubdtype(x.dtype, jnp.inexact):
+        return jnp.zeros_like(x)
+    return np.zeros(x.shape, jax.dtypes.float0)
+
+
+def _segment_reverse(step, loss_fn, params, carry, frames, prepared, targets, with_loss):
+    """``_segment`` (no remat, no unroll) with a hand-written backward pass: the
+    forward scan keeps only each frame's incoming carry; the backward is a reverse-time
+    scan that recomputes one frame's step under ``jax.vjp`` at a time, so no
+    intermediate of the step is stacked over frames (``remat="reverse"``; equal to
+    autodiff: ``tests/test_rollout.py``)."""
+    def frame_fn(p, c, xs):
+        frame, pre, target = xs
+        out, state = step(p, c.state, frame if pre is None else pre)
+        loss = (loss_fn(out, target, c.prev_out, c.prev_target, c.has_prev, frame)
+                if with_loss else jnp.zeros((), jnp.float32))
+        return Carry(state, out.astype(jnp.float32), target.astype(jnp.float32),
+                     jnp.asarray(True)), loss
+
+    def split(c):  # the differentiable part of a carry, and its flag
+        return c._replace(has_prev=None), c.has_prev
+
+    @jax.custom_vjp
+    def seg(p, c, xs):
+        return jax.lax.scan(lambda c, x: frame_fn(p, c, x), c, xs)
+
+    def fwd(p, c, xs):
+        def f(c, x):
+            c2, loss = frame_fn(p, c, x)
+            return c2, (loss, split(c)[0], c.has_prev)
+
+        last, (ls, cs, flags) = jax.lax.scan(f, c, xs)
+        return (last, ls), (p, cs, flags, xs)
+
+    def bwd(res, ct):
+        p, cs, flags, xs = res
+        ct_last, ct_ls = ct
+        ct_c = split(ct_last)[0]
+
+        def b(acc, inp):
+            g, ct_c = acc
+            cf, flag, x, ct_l = inp
+
+            def f(p, cf):
+                c2, loss = frame_fn(p, cf._replace(has_prev=flag), x)
+                return split(c2)[0], loss
+
+            _, vjp = jax.vjp(f, p, cf)
+            dp, dc = vjp((ct_c, ct_l))
+            return (jax.tree_util.tree_map(jnp.add, g, dp), dc), None
+
+        zeros = jax.tree_util.tree_map(jnp.zeros_like, p)
+        (g, ct_c0), _ = jax.lax.scan(b, (zeros, ct_c), (cs, flags, xs, ct_ls), reverse=True)
+        ct_flag = _zero_cotangent(flags[0])
+        return g, ct_c0._replace(has_prev=ct_flag), jax.tree_util.tree_map(_zero_cotangent, xs)
+
+    seg.defvjp(fwd, bwd)
+    return seg(params, carry, (frames, prepared, targets))
+
+
 def window_loss(step, loss_fn, params, carry: Carry, frames, targets, *, loss_frames,
                 keep_at=None, remat=False, unroll=1, prepare=None):
     """Mean of ``loss_fn`` over the last ``loss_frames`` frames of the window.
@@ -153,7 +218,8 @@ def window_loss(step, loss_fn, params, carry: Carry, frames, targets, *, loss_fr
         raise ValueError(f"loss_frames: expected 1..{n} (the window length), got {loss_frames}")
     if keep_at is not None and not 0 < keep_at <= n:
         raise ValueError(f"keep_at: expected 1..{n}, got {keep_at}")
-    body = _body(step, params, remat)
+    reverse = remat == "reverse"
+    body = None if reverse else _body(step, params, remat)
     cuts = sorted({0, n - loss_frames, n} | ({keep_at} if keep_at else set()))
     total, kept = jnp.zeros((), jnp.float32), None
     for a, b in zip(cuts[:-1], cuts[1:]):
@@ -162,8 +228,12 @@ def window_loss(step, loss_fn, params, carry: Carry, frames, targets, *, loss_fr
         if prepare is not None:  # per segment: slicing prepared HR tensors costs copies
             with jax.named_scope("prepare"):
                 prepared = jax.vmap(prepare)(seg_frames)
-        carry, losses = _segment(body, loss_fn, carry, seg_frames, prepared, seg_targets,
-                                 with_loss=a >= n - loss_frames, unroll=unroll)
+        if reverse:
+            carry, losses = _segment_reverse(step, loss_fn, params, carry, seg_frames, prepared,
+                                             seg_targets, with_loss=a >= n - loss_frames)
+        else:
+            carry, losses = _segment(body, loss_fn, carry, seg_frames, prepared, seg_targets,
+                                     with_loss=a >= n - loss_frames, unroll=unroll)
         total = total + losses.sum()
         if b == keep_at:
             kept = carry

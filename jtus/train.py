@@ -341,6 +341,12 @@ def config_from_args(args) -> Config:
     return config
 
 
+def config_from_argv(argv) -> Config:
+    """The training config that ``python -m jtus.train ARGV`` would run (argparse errors
+    exit as the command would; a bad combination raises ``ValueError``)."""
+    return config_from_args(_parser().parse_args(argv))
+
+
 def main(argv=None):
     args = _parser().parse_args(argv)
     from jtus.cli import sigterm_as_exit

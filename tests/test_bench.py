@@ -1,16 +1,22 @@
 """A smoke test of ``python -m jtus.bench`` (timings are measured, not asserted)."""
 
 import json
+import os
 
 from jtus import bench, cost, models
 
 
-def test_bench_smoke(capsys):
+def test_bench_smoke(capsys, tmp_path):
+    out = tmp_path / "new" / "bench.json"  # its folder is created
     assert bench.main(["--sizes", "64", "--factors", "4", "--repeats", "1", "--models",
                        "dlctus", "jau", "tus", "--train-crop", "16", "--train-seq", "2",
                        "--train-loss-frames", "1", "--train-batch", "1", "--train-warps", "bicubic",
-                       "nearest", "--json"]) == 0
+                       "nearest", "--json", "--out", str(out)]) == 0
     report = json.loads(capsys.readouterr().out)
+    assert json.loads(out.read_text()) == report
+    md = (tmp_path / "new" / "bench.md").read_text()
+    assert md == bench.markdown(report) + "\n" and "| dlctus | 64x64 | 4x |" in md
+    assert sorted(os.listdir(tmp_path / "new")) == ["bench.json", "bench.md"]
     assert report["hardware"]["cores"] >= 1
     assert {r["model"] for r in report["infer"]} == {"dlctus", "jau", "tus"}
     dl = [r for r in report["infer"] if r["model"] == "dlctus"][0]

@@ -135,5 +135,20 @@ def test_train_refuses_loss_frames_that_tbptt_would_ignore(tiny_data, tmp_path, 
             "--no-eval", "--mode", "tbptt", "--seq-len", "4", "--k1", "2", "--k2", "2"]
     _refused(capsys, train.main, base + ["--loss-frames", "1"], "loss_frames", "k1=2")
     assert not work.exists()
-    args = train._parser().parse_args(base + ["--loss-frames", "2"])
-    assert train.config_from_args(args).loss_frames == 2
+    assert train.config_from_argv(base + ["--loss-frames", "2"]).loss_frames == 2
+
+
+def test_bench_refuses_its_out_path_before_timing(tmp_path, capsys):
+    """``--out`` is checked before the minute of timing, not after it (a missing parent
+    folder is created: the report is written atomically)."""
+    from jtus import bench
+
+    a_file = tmp_path / "file.txt"
+    a_file.write_text("x")
+    for out, words in ((tmp_path, "is a folder"), (a_file / "r.json", "is a file")):
+        with pytest.raises(SystemExit) as e:
+            bench.main(["--what", "peak", "--no-torch", "--out", str(out)])
+        assert e.value.code == 2
+        err = capsys.readouterr().err
+        assert "--out" in err and words in err, err
+    assert sorted(os.listdir(tmp_path)) == ["file.txt"]

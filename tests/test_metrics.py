@@ -45,7 +45,23 @@ def test_ssim_map_matches_skimage_interior(x64, rng):
 
 
 def test_ssim_rejects_small_or_mismatched():
-    with pytest.raises(ValueError, match="11 pixels"):
+    with pytest.raises(ValueError, match=r"11 pixels on each side, got \(8, 20\)$"):
         metrics.ssim(jnp.zeros((1, 8, 20, 3)), jnp.zeros((1, 8, 20, 3)))
+    with pytest.raises(ValueError, match=r"got \(20, 10\)$"):
+        metrics.ssim(jnp.zeros((1, 20, 10, 3)), jnp.zeros((1, 20, 10, 3)))
+    # the smallest image that has one valid window: 11x11 gives a 1x1 map
+    assert metrics.ssim_map(jnp.ones((1, 11, 11, 3)), jnp.ones((1, 11, 11, 3))).shape == (
+        1, 1, 1, 3)
     with pytest.raises(ValueError, match="one shape"):
         metrics.ssim(jnp.zeros((1, 20, 20, 3)), jnp.zeros((1, 20, 21, 3)))
+
+
+def test_ssim_keeps_float32_when_float64_is_enabled():
+    """The filter taps take the images' dtype: float32 images give a float32 map even
+    with float64 enabled (taps left in float64 would promote the whole map)."""
+    x = np.random.default_rng(0).random((1, 16, 16, 3), np.float32)
+    with jax.enable_x64(True):
+        m = metrics.ssim_map(jnp.asarray(x), jnp.asarray(x[:, ::-1]))
+        assert m.dtype == jnp.float32
+        assert metrics.ssim_map(jnp.asarray(x, jnp.float64),
+                                jnp.asarray(x[:, ::-1], jnp.float64)).dtype == jnp.float64

@@ -213,3 +213,32 @@ def test_epoch_log_keeps_gradient_norms_and_collapse_reads_it(tiny_data, tmp_pat
     # a log written before the norms were kept (old runs resume) still reads
     old = [{k: v for k, v in rec.items() if "norm" not in k}]
     assert train.collapsed(old) is None
+
+
+def test_train_comparison_script_passes_valid_configs():
+    """Every run of experiments/train_comparison.sh (each model's arguments, its
+    per-factor override, both factors) parses into a valid training config, so a typo
+    there fails here and not hours into a background run."""
+    import shlex
+
+    text = open(os.path.join(os.path.dirname(__file__), "..", "experiments",
+                             "train_comparison.sh")).read()
+    common = shlex.split(re.search(r'^common="([^"]*)"', text, re.M).group(1)
+                         .replace("${EXTRA:-}", ""))
+
+    def table(name):  # the bash associative array NAME: key -> argument string
+        body = re.search(rf"^declare -A {name}=\((.*?)^\)", text, re.M | re.S).group(1)
+        return dict(re.findall(r'^\s+\[([\w-]+)\]="([^"]*)"', body, re.M))
+
+    args, override = table("args"), table("override")
+    assert set(args) == {"mlp", "kpn", "nsrr-fast", "nsrr"}
+    assert set(override) <= {f"{m}-{f}" for m in args for f in (2, 4)}, override
+    for m, a in args.items():
+        for f in (4, 2):
+            argv = common + shlex.split(a) + shlex.split(override.get(f"{m}-{f}", "")) + [
+                "--factor", str(f), "--workdir", "unused"]
+            cfg = train.config_from_argv(argv)
+            assert (cfg.model, cfg.factor, cfg.dataset) == (m, f, PRESETS["diverse"].dataset)
+            if f"{m}-{f}" in override:
+                assert "--lr" not in override[f"{m}-{f}"] or cfg.lr != train.config_from_argv(
+                    common + shlex.split(a) + ["--factor", str(f)]).lr
