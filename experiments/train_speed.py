@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import sys
 import time
 
@@ -146,7 +147,7 @@ def main(argv=None):
         print(f"  {name}: custom {t['custom']:.3f} s, autodiff {t['autodiff']:.3f} s",
               file=sys.stderr)
     report = {"hardware": bench.hardware(), "command": "python experiments/train_speed.py "
-              + " ".join(argv if argv is not None else sys.argv[1:]),
+              + shlex.join(argv if argv is not None else sys.argv[1:]),
               "workload": dict(zip(("factor", "crop", "batch", "seq", "loss_frames"), w)),
               "rows": rows, "shapes": shapes, "comparison": comp}
     os.makedirs(args.out, exist_ok=True)

@@ -132,3 +132,23 @@ def test_kpn_loss_against_its_formula(rng, has_prev):
                              jnp.asarray(has_prev), frame)
     want = _kpn_loss_numpy(out, target, prev_out, prev_target, color, jitter, f, has_prev)
     np.testing.assert_allclose(float(got), want, rtol=2e-6)  # float32 means of O(1) terms
+
+
+def test_mse_and_ssim_losses_against_numpy_and_skimage():
+    """The plain losses: MSE against numpy, NSRR's 1 - SSIM against scikit-image's SSIM
+    (Gaussian window, sigma 1.5, population covariance: the metric's settings), batch
+    mean; 1e-6."""
+    from skimage.metrics import structural_similarity
+
+    rng = np.random.default_rng(3)
+    out, tgt = rng.uniform(size=(2, 2, 20, 24, 3)).astype(np.float32)
+    rest = (None, None, None, None)
+    mse = float(losses.make("mse", 4)(jnp.asarray(out), jnp.asarray(tgt), *rest))
+    np.testing.assert_allclose(mse, np.mean((out.astype(np.float64) - tgt) ** 2), rtol=1e-6)
+    ref = np.mean([structural_similarity(o, t, gaussian_weights=True, sigma=1.5,
+                                         use_sample_covariance=False, data_range=1,
+                                         channel_axis=-1) for o, t in zip(out, tgt)])
+    ssim = float(losses.make("ssim", 4)(jnp.asarray(out), jnp.asarray(tgt), *rest))
+    np.testing.assert_allclose(ssim, 1.0 - ref, rtol=0, atol=1e-6)
+    assert float(losses.make("ssim", 4)(jnp.asarray(out), jnp.asarray(out), *rest)) == \
+        pytest.approx(0.0, abs=1e-6)
