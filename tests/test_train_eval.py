@@ -242,3 +242,36 @@ def test_train_comparison_script_passes_valid_configs():
             if f"{m}-{f}" in override:
                 assert "--lr" not in override[f"{m}-{f}"] or cfg.lr != train.config_from_argv(
                     common + shlex.split(a) + ["--factor", str(f)]).lr
+
+
+def test_ablation_studies_build_valid_models():
+    """Every variant of experiments/ablations.py is a valid training config whose model
+    builds and differs from the first variant's where the study says (a typo in a model
+    override would otherwise surface hours into a run)."""
+    import importlib.util
+    import sys
+
+    exp = os.path.join(os.path.dirname(__file__), "..", "experiments")
+    sys.path.insert(0, exp)
+    try:
+        spec = importlib.util.spec_from_file_location("ablations", os.path.join(exp,
+                                                                               "ablations.py"))
+        ablations = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(ablations)
+    finally:
+        sys.path.remove(exp)
+    for study, field, expected in (("accumulation", "accumulation", [True, False]),
+                                   ("warp", "warp", ["bicubic", "bilinear"]),
+                                   ("theta", None, None)):
+        vs = ablations.variants(study, [0.2, 0.8])
+        cfgs = [dataclasses.replace(PRESETS["diverse"], **ch) for _, ch in vs]
+        built = [recipe.model_for(c) for c in cfgs]
+        if field:
+            assert [getattr(m.config, field) for m in built] == expected
+        else:
+            assert [(c.loss, c.theta) for c in cfgs[1:]] == [("st-linear", 0.2),
+                                                             ("st-linear", 0.8)]
+            assert cfgs[0].loss == "l1"
+        assert len({ablations.slug(label) for label, _ in vs}) == len(vs)
+    with pytest.raises(ValueError, match="study"):
+        ablations.variants("nope", [])

@@ -1,0 +1,138 @@
+"""The thesis's ablations at the `diverse` recipe, over several seeds, with collapsed
+runs reported and replaced:
+
+- ``accumulation``: DLCTUS with and without its accumulation buffer (thesis Table 16);
+- ``warp``: the history reprojected bilinearly or with the 16-tap bicubic (a=-0.75),
+  each network trained with its own warp (thesis Table 13);
+- ``theta``: L1 against L_st-linear at several θ (thesis Table 10).
+
+    python experiments/ablations.py --study accumulation            # 3 seeds each, 4x
+    python experiments/ablations.py --study warp --seeds 0 1 2 --epochs 10
+    python experiments/ablations.py --study theta --thetas 0.1 0.5 0.9 --seeds 0 1 2
+
+Every run is the ``diverse`` preset (randomized scenes, every jitter sequence, crop
+128, TBPTT windows of 8 over 16 frames, warm-up and cosine decay, clipping) with
+``--epochs`` x ``--steps-per-epoch`` steps (the schedule scales to it), in
+``runs/ablation-<study>/<variant>-s<seed>/`` (resumed when it exists). A run whose
+network collapsed (``jtus.train.collapsed``: a gradient norm that stays at zero, or a
+validation loss that stops changing) is reported, not averaged, and a run with the
+next unused seed takes its place, up to ``--max-extra`` extra seeds per variant.
+Scores: PSNR, SSIM and the spatial / temporal errors over the first ``--max-videos``
+videos of the test split (never trained or tuned on), mean and standard deviation
+over the seeds that trained. Writes ``docs/results/ablation-<study>/result.{md,json}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import sys
+
+import numpy as np
+
+from common import ROOT, evaluate_videos, write  # noqa: I001  (experiments/ on sys.path)
+
+from jtus import recipe, train
+from jtus.config import PRESETS
+
+METRICS = ("psnr", "ssim", "spatial", "temporal")
+
+
+def variants(study, thetas):
+    """``[(label, Config changes)]`` of a study."""
+    if study == "accumulation":
+        return [("with buffer", {}),
+                ("without buffer", {"model_overrides": (("accumulation", False),)})]
+    if study == "warp":
+        return [("bicubic (16 taps, a=-0.75)", {"model_overrides": (("warp", "bicubic"),)}),
+                ("bilinear", {"model_overrides": (("warp", "bilinear"),)})]
+    if study == "theta":
+        return [("L1", {"loss": "l1"})] + [(f"L_st-linear θ={t}", {"loss": "st-linear",
+                                                                   "theta": t}) for t in thetas]
+    raise ValueError(f"study: expected accumulation, warp or theta, got {study!r}")
+
+
+def slug(label):
+    return "".join(c if c.isalnum() else "_" for c in label).strip("_").lower()
+
+
+def run_variant(study, label, changes, base, seeds, max_extra, max_videos, progress):
+    """Train ``len(seeds)`` networks that did not collapse (taking further seeds for
+    collapsed ones). Returns ``(records of trained runs, records of collapsed runs)``."""
+    trained, failed = [], []
+    queue, next_seed = list(seeds), max(seeds) + 1
+    while queue:
+        seed = queue.pop(0)
+        cfg = dataclasses.replace(base, seed=seed, **changes)
+        work = os.path.join(ROOT, "runs", f"ablation-{study}", f"{slug(label)}-s{seed}")
+        params, hist = train.train_and_evaluate(cfg, work, resume=True, progress=progress)
+        rec = {"variant": label, "seed": seed, "workdir": os.path.relpath(work, ROOT),
+               "val_psnr_last": hist[-1].get("val_psnr") if hist else None}
+        why = train.collapsed(hist)
+        if why:
+            rec["collapsed"] = why
+            failed.append(rec)
+            if len(failed) <= max_extra:
+                queue.append(next_seed)
+                next_seed += 1
+            print(f"{label} seed {seed}: collapsed ({why})", file=sys.stderr)
+            continue
+        rec.update(evaluate_videos(recipe.model_for(cfg), params, cfg.dataset, cfg.factor,
+                                   max_videos=max_videos))
+        trained.append(rec)
+        print(f"{label} seed {seed}: " + ", ".join(f"{k} {rec[k]:.4g}" for k in METRICS),
+              file=sys.stderr)
+    return trained, failed
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--study", required=True, choices=("accumulation", "warp", "theta"))
+    p.add_argument("--factor", type=int, default=4, choices=(2, 4))
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--max-extra", type=int, default=3,
+                   help="extra seeds per variant to replace collapsed runs")
+    p.add_argument("--thetas", type=float, nargs="+", default=[0.1, 0.5, 0.9])
+    p.add_argument("--epochs", type=int, default=10)
+    p.add_argument("--steps-per-epoch", type=int, default=200)
+    p.add_argument("--preset", default="diverse", choices=sorted(PRESETS))
+    p.add_argument("--dataset", help="default: the preset's")
+    p.add_argument("--max-videos", type=int, default=8)
+    args = p.parse_args(argv)
+    if len(set(args.seeds)) != len(args.seeds) or min(args.seeds) < 0:
+        p.error(f"--seeds: expected distinct seeds >= 0, got {args.seeds}")
+    base = dataclasses.replace(PRESETS[args.preset], factor=args.factor, epochs=args.epochs,
+                               steps_per_epoch=args.steps_per_epoch,
+                               **({"dataset": args.dataset} if args.dataset else {}))
+    rows, data = [], {"trained": [], "collapsed": []}
+    for label, changes in variants(args.study, args.thetas):
+        trained, failed = run_variant(args.study, label, changes, base, args.seeds,
+                                      args.max_extra, args.max_videos, sys.stderr.isatty())
+        data["trained"] += trained
+        data["collapsed"] += failed
+        cells = []
+        for k in METRICS:
+            v = np.array([r[k] for r in trained])
+            digits = 2 if k == "psnr" else 4 if k == "ssim" else 5
+            cells.append(f"{v.mean():.{digits}f} ± {v.std(ddof=1) if len(v) > 1 else 0:.{digits}f}"
+                         if len(v) else "-")
+        rows.append(f"| {label} | {', '.join(str(r['seed']) for r in trained) or '-'} | "
+                    f"{', '.join(str(r['seed']) for r in failed) or 'none'} | "
+                    + " | ".join(cells) + " |")
+    table = "\n".join(["| variant | seeds trained | seeds collapsed (replaced) | PSNR (dB) | "
+                       "SSIM | spatial error (θ=0) | temporal error (θ=1) |",
+                       "| --- | --- | --- | --- | --- | --- | --- |"] + rows)
+    steps = args.epochs * args.steps_per_epoch
+    data_name = os.path.relpath(base.dataset, ROOT) if os.path.isabs(base.dataset) else \
+        base.dataset
+    write(f"ablation-{args.study}", table, data,
+          note=f"DLCTUS {args.factor}x, the `{args.preset}` recipe for {args.epochs} x "
+               f"{args.steps_per_epoch} = {steps:,} steps per run; mean ± standard deviation "
+               f"over the seeds that trained, on the first {args.max_videos} test videos of "
+               f"`{data_name}`.")
+
+
+if __name__ == "__main__":
+    main()
