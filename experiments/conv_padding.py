@@ -6,7 +6,7 @@
 Writes ``docs/results/<name>/result.{md,json}``.
 
 Times the trunk (four residual blocks of two 3x3 32->32 convolutions) jitted, warm,
-median of repeats, with four ways of padding: zero padding (the SAME convolution
+medians of round-robin repeats, with four ways of padding: zero padding (the SAME convolution
 alone: a lower bound, not DLCTUS's function), jtus's edge pad + SAME + crop
 (``layers.conv_edge``), edge pad + VALID, and a zero-padded SAME convolution plus a
 correction computed on the one-pixel border ring. The three edge-padded variants are
@@ -80,8 +80,7 @@ def main(argv=None):
         err = float(jnp.abs(VARIANTS[name](x, k, b) - ref).max())
         if err > 1e-4:
             raise AssertionError(f"{name}: differs from conv_edge by {err}")
-    rows, data = [], []
-    base = None
+    fns = {}
     for name, conv in VARIANTS.items():
         def trunk(x, conv=conv):
             for _ in range(4):
@@ -89,12 +88,14 @@ def main(argv=None):
             return x
 
         f = jax.jit(trunk)
-        ms = 1e3 * bench.timeit(lambda: f(x).block_until_ready(), args.repeats)
-        base = base or ms
-        rows.append(f"| {name} | {ms:.1f} | {ms / base:.2f}x |")
-        data.append({"padding": name, "ms": ms, "vs_zero": ms / base})
+        fns[name] = lambda f=f: f(x).block_until_ready()
+    sec = bench.timeit_round_robin(fns, args.repeats)  # in turn: ratios from one machine
+    base = sec[next(iter(sec))]
+    rows = [f"| {name} | {1e3 * s:.1f} | {s / base:.2f}x |" for name, s in sec.items()]
+    data = [{"padding": name, "ms": 1e3 * s, "vs_zero": s / base} for name, s in sec.items()]
     table = (f"Trunk of 8 convolutions at {args.batch}x{args.size[0]}x{args.size[1]}x32, "
-             f"median of {args.repeats}.\n\n| padding | ms | vs zero padding |\n"
+             f"medians of {args.repeats} round-robin repeats.\n\n"
+             "| padding | ms | vs zero padding |\n"
              "| --- | --- | --- |\n" + "\n".join(rows))
     write(args.name, table, {"size": list(args.size), "batch": args.batch, "rows": data})
     return 0

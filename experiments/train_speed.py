@@ -23,24 +23,10 @@ import json
 import os
 import shlex
 import sys
-import time
 
 import numpy as np
 
 from jtus import bench
-
-
-def round_robin(fns, repeats):
-    """Median seconds of each ``fn()`` (which blocks), timed in turn after a warm-up."""
-    for fn in fns.values():
-        fn()
-    times = {k: [] for k in fns}
-    for _ in range(repeats):
-        for k, fn in fns.items():
-            t0 = time.perf_counter()
-            fn()
-            times[k].append(time.perf_counter() - t0)
-    return {k: float(np.median(v)) for k, v in times.items()}
 
 
 VARIANTS = {  # name -> train_workload overrides
@@ -123,7 +109,7 @@ def main(argv=None):
     if not args.no_torch:
         fns["PyTorch"] = bench.torch_train(*w)
     print(f"timing {len(fns)} variants x {args.repeats}", file=sys.stderr)
-    sec = round_robin(fns, args.repeats)
+    sec = bench.timeit_round_robin(fns, args.repeats)
     frames = args.batch * args.seq
     base = sec["plain scan"] if "plain scan" in sec else None
     rows = [{"variant": k, "s_per_step": v, "frames_per_s": frames / v,
@@ -142,7 +128,7 @@ def main(argv=None):
     for name in args.comparison:
         pair = {"custom": comparison_step(name, args.factor, 64, 4, 8, 8),
                 "autodiff": comparison_step(name, args.factor, 64, 4, 8, 8, fast=False)}
-        t = round_robin(pair, max(3, args.repeats // 2))
+        t = bench.timeit_round_robin(pair, max(3, args.repeats // 2))
         comp.append({"model": name, "custom_s": t["custom"], "autodiff_s": t["autodiff"]})
         print(f"  {name}: custom {t['custom']:.3f} s, autodiff {t['autodiff']:.3f} s",
               file=sys.stderr)

@@ -60,19 +60,26 @@ def timeit(fn, repeats=5):
     return float(np.median(ts))
 
 
-def timeit_pair(fa, fb, repeats=5):
-    """Median seconds of ``fa()`` and of ``fb()``, timed alternately (a, b, a, b, ...)
-    after one warm-up call each, so that both see the same machine: on a shared,
-    noisy machine their ratio is then steadier than that of two separate medians."""
-    fa()
-    fb()
-    ta, tb = [], []
+def timeit_round_robin(fns, repeats=5):
+    """``{name: median seconds}`` of each blocking ``fns[name]()``, timed in turn (a, b,
+    c, a, b, c, ...) after one warm-up call each, so that all see the same machine: on
+    a shared, noisy machine their ratios are then steadier than separate medians'."""
+    for fn in fns.values():
+        fn()
+    times = {k: [] for k in fns}
     for _ in range(repeats):
-        for fn, ts in ((fa, ta), (fb, tb)):
+        for k, fn in fns.items():
             t0 = time.perf_counter()
             fn()
-            ts.append(time.perf_counter() - t0)
-    return float(np.median(ta)), float(np.median(tb))
+            times[k].append(time.perf_counter() - t0)
+    return {k: float(np.median(v)) for k, v in times.items()}
+
+
+def timeit_pair(fa, fb, repeats=5):
+    """Median seconds of ``fa()`` and of ``fb()``, timed alternately
+    (``timeit_round_robin`` of the two)."""
+    t = timeit_round_robin({"a": fa, "b": fb}, repeats)
+    return t["a"], t["b"]
 
 
 def peaks(repeats):

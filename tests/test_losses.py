@@ -120,11 +120,20 @@ def test_kpn_loss_against_its_formula(rng, has_prev):
     """Catches: the mask not dilated or not clipped, the boost on the wrong side of M,
     the gradient term dropped or cropped differently,
     the temporal term without the previous error, a weight changed."""
+    from tests.seqdata import jau_reference
+
     f, b, h, w = 2, 2, 5, 6
     shape = (b, h * f, w * f, 3)
-    out, target, prev_out, prev_target = (rng.uniform(size=shape) for _ in range(4))
+    out, prev_out, prev_target = (rng.uniform(size=shape) for _ in range(3))
     color = rng.uniform(size=(b, h, w, 3))
     jitter = np.array([[0.25, 0.75], [0.6, 0.1]])
+    # the reference differs from the jitter-aligned input by nothing in the left third,
+    # a little in the middle (M strictly between 0 and 1) and much on the right (M = 1),
+    # so that the mask's scale, clip, dilation and the boost's side all show
+    scale = np.select([np.arange(w * f) < 4, np.arange(w * f) < 8], [0.0, 0.03], 0.5)
+    target = jau_reference(color, jitter, f) + rng.uniform(-1, 1, shape) * scale[:, None]
+    m = np.clip(4.0 * np.abs(target - jau_reference(color, jitter, f)).sum(-1), 0, 1)
+    assert (m == 0).any() and ((m > 0.05) & (m < 0.95)).any() and (m == 1).any()
     frame = Frame(jnp.asarray(color, jnp.float32), jnp.zeros((b, h, w, 1)),
                   jnp.zeros((b, h, w, 2)), jnp.asarray(jitter, jnp.float32))
     got = losses.kpn_loss(f)(*(jnp.asarray(x, jnp.float32) for x in
@@ -152,3 +161,24 @@ def test_mse_and_ssim_losses_against_numpy_and_skimage():
     np.testing.assert_allclose(ssim, 1.0 - ref, rtol=0, atol=1e-6)
     assert float(losses.make("ssim", 4)(jnp.asarray(out), jnp.asarray(out), *rest)) == \
         pytest.approx(0.0, abs=1e-6)
+
+
+def test_kpn_loss_reads_low_precision_frames_in_float32(rng):
+    """A half-precision frame (``Frame`` allows any floating dtype) gives the loss of
+    the same values in float32: the jitter-aligned input the alias mask compares with
+    is formed in float32, not in the frame's dtype (the loss casts, and the bilinear
+    JAU promotes to float32 by itself, so mutating either alone changes nothing:
+    experiments/mutation.py lists those mutants as equivalent)."""
+    f, b, h, w = 2, 1, 4, 5
+    shape = (b, h * f, w * f, 3)
+    out, target, prev_out, prev_target = (jnp.asarray(rng.uniform(size=shape), jnp.float32)
+                                          for _ in range(4))
+    color = jnp.asarray(rng.uniform(size=(b, h, w, 3)), jnp.float16)
+    jitter = jnp.asarray([[0.3, 0.7]], jnp.float16)
+    zeros = (jnp.zeros((b, h, w, 1)), jnp.zeros((b, h, w, 2)))
+    half = Frame(color, *zeros, jitter)
+    full = Frame(color.astype(jnp.float32), *zeros, jitter.astype(jnp.float32))
+    loss = losses.kpn_loss(f)
+    target = target.at[:, :, :4].set(0.0)  # a partial alias mask somewhere
+    assert float(loss(out, target, prev_out, prev_target, jnp.asarray(True), half)) == \
+        float(loss(out, target, prev_out, prev_target, jnp.asarray(True), full))
