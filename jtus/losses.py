@@ -34,7 +34,7 @@ from jtus import metrics, sampling
 NAMES = ("l1", "mse", "salvi", "st", "st-linear", "ssim", "kpn")
 
 
-def warp_previous(prev, motion, factor, method="bilinear"):
+def warp_previous(prev, motion, factor, method):
     """``prev [B,H,W,C]`` read at the current frame's reprojected positions, and the
     mask ``[B,H,W,1]`` of positions inside the previous frame. ``motion`` is the LR
     backward motion ``[B,h,w,2]``."""

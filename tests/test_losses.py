@@ -182,3 +182,26 @@ def test_kpn_loss_reads_low_precision_frames_in_float32(rng):
     target = target.at[:, :, :4].set(0.0)  # a partial alias mask somewhere
     assert float(loss(out, target, prev_out, prev_target, jnp.asarray(True), half)) == \
         float(loss(out, target, prev_out, prev_target, jnp.asarray(True), full))
+
+
+@pytest.mark.parametrize("method", ["bilinear", "catmull_rom"])
+def test_temporal_loss_warps_with_the_method_it_is_given(rng, method):
+    """``make(..., method=M)`` reads the previous error with warp M: the loss equals
+    L_st-linear (eq. 55) on the previous error read by ``sampling.sample(..., M)`` at
+    the reprojected positions (motion of a fraction of a pixel, so the warps differ),
+    and the two methods give different losses."""
+    from jtus import sampling
+
+    f, h, w = 2, 6, 7
+    mv = rng.uniform(-0.7, 0.7, size=(1, h, w, 2)).astype(np.float32)
+    out, target, prev_out, prev_target, frame = _case(rng, factor=f, h=h, w=w, motion=mv)
+    args = (out, target, prev_out, prev_target, jnp.asarray(True), frame)
+    xy = sampling.reproject_coords(jnp.asarray(mv), f)
+    y, inside = sampling.sample(prev_out - prev_target, xy, method, return_mask=True)
+    x, y = np.asarray(out - target), np.where(np.asarray(inside), np.asarray(y), 0.0)
+    theta = 0.4
+    want = np.mean((1 - theta) * (np.abs(x) + np.abs(y)) + theta * np.abs(x - y))
+    got = float(losses.make("st-linear", f, theta=theta, method=method)(*args))
+    np.testing.assert_allclose(got, want, rtol=1e-5)
+    other = "catmull_rom" if method == "bilinear" else "bilinear"
+    assert abs(got - float(losses.make("st-linear", f, theta=theta, method=other)(*args))) > 1e-4
