@@ -22,8 +22,8 @@ intermediate is recomputed in the backward pass), a name from ``REMAT_POLICIES``
 saves what that ``jax.checkpoint_policies`` policy saves; in ``window_loss``,
 ``"reverse"`` is a hand-written reverse-time backward (``_segment_reverse``) that
 stacks only each frame's carry and recomputes one step at a time. ``unroll`` is
-passed to ``lax.scan`` (``True`` unrolls fully: on XLA:CPU a rolled scan over convolutions has a slow
-backward, see ``docs/performance.md``).
+passed to ``lax.scan`` (``True`` unrolls fully: on XLA:CPU a rolled scan over
+convolutions has a slow backward, see ``docs/performance.md``).
 """
 
 from __future__ import annotations
