@@ -38,7 +38,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TESTS = {
     "jtus/metrics.py": ["tests/test_metrics.py"],
     "jtus/losses.py": ["tests/test_losses.py", "tests/test_blind_spots.py",
-                       "tests/test_perceptual.py"],
+                       "tests/test_perceptual.py", "tests/test_hdr.py"],
     "jtus/rollout.py": ["tests/test_rollout.py"],
     "jtus/sampling/warp.py": ["tests/test_warp_torch.py", "tests/test_warp_properties.py"],
     "jtus/sampling/upsample.py": ["tests/test_upsample_jitter.py", "tests/test_warp_torch.py"],

@@ -144,7 +144,7 @@ def test_kpn_loss_against_its_formula(rng, has_prev):
 
 
 def test_mse_and_ssim_losses_against_numpy_and_skimage():
-    """The plain losses: MSE against numpy, NSRR's 1 - SSIM against scikit-image's SSIM
+    """The plain losses: L1 and MSE against numpy, NSRR's 1 - SSIM against scikit-image's SSIM
     (Gaussian window, sigma 1.5, population covariance: the metric's settings), batch
     mean; 1e-6."""
     from skimage.metrics import structural_similarity
@@ -154,6 +154,8 @@ def test_mse_and_ssim_losses_against_numpy_and_skimage():
     rest = (None, None, None, None)
     mse = float(losses.make("mse", 4)(jnp.asarray(out), jnp.asarray(tgt), *rest))
     np.testing.assert_allclose(mse, np.mean((out.astype(np.float64) - tgt) ** 2), rtol=1e-6)
+    l1 = float(losses.make("l1", 4)(jnp.asarray(out), jnp.asarray(tgt), *rest))
+    np.testing.assert_allclose(l1, np.mean(np.abs(out.astype(np.float64) - tgt)), rtol=1e-6)
     ref = np.mean([structural_similarity(o, t, gaussian_weights=True, sigma=1.5,
                                          use_sample_covariance=False, data_range=1,
                                          channel_axis=-1) for o, t in zip(out, tgt)])
