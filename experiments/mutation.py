@@ -105,9 +105,10 @@ def run_module(module, workdir, max_children, recheck=False):
         return dict(re.findall(r"^\s+(\S+): (.+)$", res, re.M))
 
     t0 = time.perf_counter()
-    subprocess.run(["mutmut", "run", "--max-children", str(max_children)], cwd=dest, env=env,
-                   stdout=subprocess.DEVNULL, check=False)  # resumes where it stopped
-    if recheck:  # survivors of an earlier run, against the tests as they are now
+    if not recheck:
+        subprocess.run(["mutmut", "run", "--max-children", str(max_children)], cwd=dest,
+                       env=env, stdout=subprocess.DEVNULL, check=False)  # resumes
+    else:  # only the survivors of earlier runs, against the tests as they are now
         survivors = [k for k, v in status().items()
                      if v in ("survived", "no tests") and k not in EQUIVALENT]
         if survivors:
@@ -131,8 +132,8 @@ def main(argv=None):
     p.add_argument("--max-children", type=int, default=2)
     p.add_argument("--out", default=OUT)
     p.add_argument("--recheck", action="store_true",
-                   help="run the surviving (and untested) mutants of earlier runs again, "
-                        "against the tests as they are now")
+                   help="run only the surviving (and untested) mutants of earlier runs again, "
+                        "against the tests as they are now (no new mutants)")
     args = p.parse_args(argv)
     if shutil.which("mutmut") is None:
         sys.exit("error: mutmut is not installed (pip install mutmut)")

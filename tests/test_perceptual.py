@@ -74,6 +74,9 @@ def test_nsrr_loss_adds_weighted_term(vgg_file):
     term = perceptual.loss(perceptual.load_vgg16(path), out, tgt)
     np.testing.assert_allclose(float(full), float(base) + 0.1 * float(term), rtol=1e-6)
     assert float(term) > 0
+    # NSRR's weight of the perceptual term, 0.1, is the default
+    default = losses.make("ssim", 4, perceptual_weights=path)(out, tgt, None, None, None, None)
+    assert float(default) == float(full)
 
 
 def test_bad_weight_files(tmp_path, vgg_file):
