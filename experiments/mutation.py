@@ -149,7 +149,7 @@ def main(argv=None):
     os.makedirs(os.path.dirname(args.out), exist_ok=True)
     with open(args.out, "w") as fh:
         fh.write("# Mutation testing (mutmut)\n\n| module | mutants | run | killed | kill rate "
-                 "| seconds |\n| --- | --- | --- | --- | --- | --- |\n")
+                 "| seconds of this invocation |\n| --- | --- | --- | --- | --- | --- |\n")
         for m, n, tested, killed, rate, seconds, _ in rows:
             fh.write(f"| `{m}` | {n} | {tested} | {killed} | {rate} | {seconds:,.0f} |\n")
         fh.write("\nA timed-out mutant is not counted as killed: with JAX a hang can be the "
