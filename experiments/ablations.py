@@ -20,6 +20,10 @@ next unused seed takes its place, up to ``--max-extra`` extra seeds per variant.
 Scores: PSNR, SSIM and the spatial / temporal errors over the first ``--max-videos``
 videos of the test split (never trained or tuned on), mean and standard deviation
 over the seeds that trained. Writes ``docs/results/ablation-<study>/result.{md,json}``.
+
+A study spans sessions: ``--save-only`` copies every run's checkpoint, config and log
+to ``experiments/checkpoints/ablation-<study>/<variant>-s<seed>/`` (about 1 MB each, to
+commit) and exits; a run whose workdir holds no checkpoint starts from that copy.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
+import shutil
 import sys
 
 import numpy as np
@@ -57,6 +62,37 @@ def slug(label):
     return "".join(c if c.isalnum() else "_" for c in label).strip("_").lower()
 
 
+SAVED = ("checkpoint.msgpack", "config.json", "metrics.json", "metrics.csv")
+
+
+def saved_dir(work):
+    """Where a run's checkpoint is kept between sessions (committed)."""
+    study, run = os.path.split(os.path.relpath(work, os.path.join(ROOT, "runs")))
+    return os.path.join(ROOT, "experiments", "checkpoints", study, run)
+
+
+def copy_run(src, dst):
+    """Copy a run's files (those that exist) from ``src`` to ``dst``; True if it had a
+    checkpoint."""
+    if not os.path.exists(os.path.join(src, SAVED[0])):
+        return False
+    os.makedirs(dst, exist_ok=True)
+    for name in SAVED:
+        if os.path.exists(os.path.join(src, name)):
+            shutil.copy2(os.path.join(src, name), os.path.join(dst, name))
+    return True
+
+
+def save_runs(study):
+    """Copy every run of ``study`` that has a checkpoint to its saved directory."""
+    root = os.path.join(ROOT, "runs", f"ablation-{study}")
+    for run in sorted(os.listdir(root)) if os.path.isdir(root) else []:
+        work = os.path.join(root, run)
+        if copy_run(work, saved_dir(work)):
+            print(f"saved {os.path.relpath(work, ROOT)} -> "
+                  f"{os.path.relpath(saved_dir(work), ROOT)}")
+
+
 def run_variant(study, label, changes, base, seeds, max_extra, max_videos, progress):
     """Train ``len(seeds)`` networks that did not collapse (taking further seeds for
     collapsed ones). Returns ``(records of trained runs, records of collapsed runs)``."""
@@ -66,6 +102,10 @@ def run_variant(study, label, changes, base, seeds, max_extra, max_videos, progr
         seed = queue.pop(0)
         cfg = dataclasses.replace(base, seed=seed, **changes)
         work = os.path.join(ROOT, "runs", f"ablation-{study}", f"{slug(label)}-s{seed}")
+        if not os.path.exists(os.path.join(work, SAVED[0])) and \
+                copy_run(saved_dir(work), work):
+            print(f"resuming {os.path.relpath(work, ROOT)} from its saved checkpoint",
+                  file=sys.stderr)
         params, hist = train.train_and_evaluate(cfg, work, resume=True, progress=progress)
         rec = {"variant": label, "seed": seed, "workdir": os.path.relpath(work, ROOT),
                "val_psnr_last": hist[-1].get("val_psnr") if hist else None}
@@ -100,7 +140,12 @@ def main(argv=None):
     p.add_argument("--preset", default="diverse", choices=sorted(PRESETS))
     p.add_argument("--dataset", help="default: the preset's")
     p.add_argument("--max-videos", type=int, default=8)
+    p.add_argument("--save-only", action="store_true",
+                   help="copy every run's checkpoint to experiments/checkpoints/ and exit")
     args = p.parse_args(argv)
+    if args.save_only:
+        save_runs(args.study)
+        return
     if len(set(args.seeds)) != len(args.seeds) or min(args.seeds) < 0:
         p.error(f"--seeds: expected distinct seeds >= 0, got {args.seeds}")
     base = dataclasses.replace(PRESETS[args.preset], factor=args.factor, epochs=args.epochs,

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import json
 import os
 import re
 import shutil
@@ -146,21 +147,41 @@ def main(argv=None):
         rate = f"{100 * killed / tested:.0f}%" if tested else "n/a"
         rows.append((m, len(status), tested, killed, rate, seconds, survivors))
         print(f"{m}: {killed}/{tested} killed ({rate}), {dict(counts)}, {seconds:.0f} s")
-    os.makedirs(os.path.dirname(args.out), exist_ok=True)
-    with open(args.out, "w") as fh:
-        fh.write("# Mutation testing (mutmut)\n\n| module | mutants | run | killed | kill rate "
-                 "| seconds of this invocation |\n| --- | --- | --- | --- | --- | --- |\n")
-        for m, n, tested, killed, rate, seconds, _ in rows:
-            fh.write(f"| `{m}` | {n} | {tested} | {killed} | {rate} | {seconds:,.0f} |\n")
-        fh.write("\nA timed-out mutant is not counted as killed: with JAX a hang can be the "
-                 "harness's, not the mutant's. Surviving mutants:\n\n")
-        for m, *_, survivors in rows:
-            fh.write(f"- `{m}`: " + (", ".join(f"`{s}`" for s in survivors) or "none") + "\n")
-        fh.write("\nEquivalent mutants left out: " + (", ".join(
-            f"`{k}` ({v})" for k, v in EQUIVALENT.items()) or "none") + ".\n\nMade by `python "
-            "experiments/mutation.py " + " ".join(argv if argv is not None else sys.argv[1:])
-            + "`.\n")
+    command = "python experiments/mutation.py " + " ".join(
+        argv if argv is not None else sys.argv[1:])
+    write_results(args.out, rows, command)
 
+
+def write_results(out, rows, command):
+    """Merges this invocation's rows into ``out`` (and the JSON beside it): a module run now
+    replaces its earlier row, the other modules keep theirs with the command that made them."""
+    os.makedirs(os.path.dirname(out), exist_ok=True)
+    store = os.path.splitext(out)[0] + ".json"
+    table = json.load(open(store)) if os.path.exists(store) else {}
+    for m, n, tested, killed, rate, seconds, survivors in rows:
+        table[m] = dict(mutants=n, run=tested, killed=killed, rate=rate,
+                        seconds=round(seconds), survivors=survivors, command=command,
+                        date=time.strftime("%Y-%m-%d"))
+    tmp = store + ".tmp"
+    with open(tmp, "w") as fh:
+        json.dump(table, fh, indent=1, sort_keys=True)
+    os.replace(tmp, store)
+    order = [m for m in TESTS if m in table]
+    with open(out, "w") as fh:
+        fh.write("# Mutation testing (mutmut)\n\n| module | mutants | run | killed | kill rate "
+                 "| seconds | made by (date) |\n| --- | --- | --- | --- | --- | --- | --- |\n")
+        for m in order:
+            r = table[m]
+            fh.write(f"| `{m}` | {r['mutants']} | {r['run']} | {r['killed']} | {r['rate']} | "
+                     f"{r['seconds']:,} | `{r['command']}` ({r['date']}) |\n")
+        fh.write("\nA timed-out mutant is not counted as killed: with JAX a hang can be the "
+                 "harness's, not the mutant's. A `--recheck` row's seconds are those of the "
+                 "recheck only. Surviving mutants:\n\n")
+        for m in order:
+            fh.write(f"- `{m}`: " + (", ".join(f"`{s}`" for s in table[m]["survivors"])
+                                     or "none") + "\n")
+        fh.write("\nEquivalent mutants left out: " + (", ".join(
+            f"`{k}` ({v})" for k, v in EQUIVALENT.items()) or "none") + ".\n")
 
 if __name__ == "__main__":
     main()

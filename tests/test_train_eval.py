@@ -244,10 +244,7 @@ def test_train_comparison_script_passes_valid_configs():
                     common + shlex.split(a) + ["--factor", str(f)]).lr
 
 
-def test_ablation_studies_build_valid_models():
-    """Every variant of experiments/ablations.py is a valid training config whose model
-    builds and differs from the first variant's where the study says (a typo in a model
-    override would otherwise surface hours into a run)."""
+def _load_ablations():
     import importlib.util
     import sys
 
@@ -260,6 +257,14 @@ def test_ablation_studies_build_valid_models():
         spec.loader.exec_module(ablations)
     finally:
         sys.path.remove(exp)
+    return ablations
+
+
+def test_ablation_studies_build_valid_models():
+    """Every variant of experiments/ablations.py is a valid training config whose model
+    builds and differs from the first variant's where the study says (a typo in a model
+    override would otherwise surface hours into a run)."""
+    ablations = _load_ablations()
     for study, field, expected in (("accumulation", "accumulation", [True, False]),
                                    ("warp", "warp", ["bicubic", "bilinear"]),
                                    ("theta", None, None)):
@@ -275,3 +280,22 @@ def test_ablation_studies_build_valid_models():
         assert len({ablations.slug(label) for label, _ in vs}) == len(vs)
     with pytest.raises(ValueError, match="study"):
         ablations.variants("nope", [])
+    # a run's checkpoint goes to experiments/checkpoints/ablation-<study>/<run>/ and back
+    work = os.path.join(ablations.ROOT, "runs", "ablation-warp", "bilinear-s4")
+    assert os.path.relpath(ablations.saved_dir(work), ablations.ROOT) == os.path.join(
+        "experiments", "checkpoints", "ablation-warp", "bilinear-s4")
+
+
+def test_ablation_runs_are_saved_and_restored(tmp_path):
+    """A study spans sessions through committed copies of its runs' checkpoints."""
+    ablations = _load_ablations()
+    src, dst = tmp_path / "run", tmp_path / "saved"
+    src.mkdir()
+    assert not ablations.copy_run(str(src), str(dst))  # no checkpoint: nothing copied
+    assert not dst.exists()
+    for name, text in (("checkpoint.msgpack", "ck"), ("config.json", "{}"),
+                       ("metrics.csv", "epoch")):
+        (src / name).write_text(text)
+    assert ablations.copy_run(str(src), str(dst))
+    assert sorted(os.listdir(dst)) == ["checkpoint.msgpack", "config.json", "metrics.csv"]
+    assert (dst / "checkpoint.msgpack").read_text() == "ck"
