@@ -244,20 +244,24 @@ def test_train_comparison_script_passes_valid_configs():
                     common + shlex.split(a) + ["--factor", str(f)]).lr
 
 
-def _load_ablations():
+def _load_experiment(name):
+    """An experiment script as a module (experiments/ on sys.path while it loads)."""
     import importlib.util
     import sys
 
     exp = os.path.join(os.path.dirname(__file__), "..", "experiments")
     sys.path.insert(0, exp)
     try:
-        spec = importlib.util.spec_from_file_location("ablations", os.path.join(exp,
-                                                                               "ablations.py"))
-        ablations = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(ablations)
+        spec = importlib.util.spec_from_file_location(name, os.path.join(exp, f"{name}.py"))
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
     finally:
         sys.path.remove(exp)
-    return ablations
+    return module
+
+
+def _load_ablations():
+    return _load_experiment("ablations")
 
 
 def test_ablation_studies_build_valid_models():
@@ -299,3 +303,34 @@ def test_ablation_runs_are_saved_and_restored(tmp_path):
     assert ablations.copy_run(str(src), str(dst))
     assert sorted(os.listdir(dst)) == ["checkpoint.msgpack", "config.json", "metrics.csv"]
     assert (dst / "checkpoint.msgpack").read_text() == "ck"
+
+
+def test_comparison_table_systems_and_targets():
+    """experiments/comparison_table.py: every system is listed at both factors with a
+    spec that loads (or none, when it has no training on the diverse data), and the
+    targets' margins and verdicts follow the issue's thresholds."""
+    ct = _load_experiment("comparison_table")
+    for f in (4, 2):
+        rows = ct.systems(f)
+        assert [r[0] for r in rows] == ["jau", "tus", "dlctus", *ct.SYSTEMS]
+        for label, spec, status, budget in rows:
+            if spec is None:
+                assert budget is None and "not trained" in status
+                continue
+            entry = models.load(spec, f)
+            assert entry is not None and entry.label == label
+            if label not in ("jau", "tus"):
+                assert budget["steps"] > 0 and budget["seconds"] > 0
+    psnr = lambda v: {"psnr": v}  # noqa: E731
+    res = {"4": {"random": {"dlctus": psnr(30.0), "tus": psnr(28.0), "jau": psnr(27.0),
+                            "nsrr": psnr(27.5)},
+                 "external": {"dlctus": psnr(22.0), "tus": psnr(22.5), "jau": psnr(21.0)}},
+           "2": {"handmade": {"dlctus": psnr(33.4), "tus": psnr(32.0), "jau": psnr(31.0),
+                              "mlp": psnr(31.5)}}}
+    got = {what: (round(m, 6), ok) for what, m, ok in ct.targets(res)}
+    assert got == {"DLCTUS - TUS >= 2.0 dB, random, 4x": (2.0, True),
+                   "DLCTUS - TUS > 0, external, 4x": (-0.5, False),
+                   "nsrr - JAU > 0, random, 4x": (0.5, True),
+                   "DLCTUS - TUS >= 1.5 dB, handmade, 2x": (1.4, False),
+                   "mlp - JAU > 0, handmade, 2x": (0.5, True),
+                   "NSRR - TUS > 0, random, 4x": (-0.5, False)}

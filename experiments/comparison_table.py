@@ -1,0 +1,176 @@
+"""The one evaluation table (the training issue, item 5): every system on the three test
+families, per factor, with what each was trained for.
+
+    python experiments/comparison_table.py                 # both factors, all families
+    python experiments/comparison_table.py --factors 4 --families random
+
+Families (each video from a fresh state; none trained or tuned on):
+- ``random``: the randomized scenes' unseen test seeds of ``data/diverse.h5``;
+- ``handmade``: the hand-made scenes with varied jitter, test split of the same file;
+- ``external``: the independent renderer's clips (Mitsuba 3, ``data/external``, made by
+  ``python experiments/external/render_mitsuba.py``), every frame of the three pooled.
+
+Systems: JAU and TUS (nothing to train), the shipped DLCTUS (``jtus/weights/``) and each
+comparison system at its newest training on the ``diverse`` data: the exported weights
+of a finished run (``experiments/weights/<model>-x<f>.msgpack``) or, for a run still in
+progress, its committed checkpoint (``experiments/checkpoints/<model>-diverse-x<f>/``),
+labelled with its epoch. A system with no training on the ``diverse`` data is listed,
+not evaluated: its older weights were trained on other data.
+
+Each cell is PSNR (dB) / SSIM / temporal error (L_st-linear's temporal term, θ=1).
+Below the tables, the issue's targets with their measured margins. Writes
+``docs/results/comparison-table/result.{md,json}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+
+import numpy as np
+
+from common import ROOT, write  # noqa: I001  (experiments/ on sys.path)
+from training_summary import SYSTEMS, find
+
+from jtus import evaluate, models
+
+FAMILIES = {
+    "random": ("randomized scenes, unseen seeds", "data/diverse.h5", "random_*"),
+    "handmade": ("hand-made scenes, varied jitter", "data/diverse.h5", "[!r]*"),
+    "external": ("independent renderer (Mitsuba 3)", "data/external", None),
+}
+CLIPS = ("library", "fence", "turntable")
+
+
+def budget(cfg, rows):
+    """``{steps, crop, frames, seconds}`` of a run from its config and per-epoch log."""
+    return {"steps": int(rows[-1]["step"]), "crop": cfg["crop"], "frames": cfg["seq_len"],
+            "seconds": sum(float(r["seconds"]) for r in rows)}
+
+
+def systems(factor):
+    """``[(label, spec or None, status, budget or None)]`` for every system at ``factor``."""
+    out = [("jau", "jau", "-", None), ("tus", "tus", "-", None)]
+    with open(os.path.join(ROOT, "jtus", "weights", f"dlctus-x{factor}.json")) as fh:
+        cfg = json.load(fh)
+    with open(os.path.join(ROOT, "jtus", "weights", f"dlctus-x{factor}-training.csv")) as fh:
+        rows = list(csv.DictReader(fh))
+    out.append(("dlctus", f"dlctus={models.shipped_path(factor)}", "shipped",
+                budget(cfg, rows)))
+    for m in SYSTEMS:
+        got = find(m, factor, ROOT)
+        if got is None:
+            out.append((m, None, "not trained on the diverse data yet", None))
+            continue
+        rows, planned, src = got
+        run_dir = os.path.dirname(src)
+        if src.startswith("experiments/weights/"):
+            path, status = f"experiments/weights/{m}-x{factor}.msgpack", "finished"
+            cfg_path = os.path.join(ROOT, path.replace(".msgpack", ".json"))
+        else:
+            path = f"{run_dir}/checkpoint.msgpack"
+            status = f"epoch {len(rows)} of {planned} (unfinished)"
+            cfg_path = os.path.join(ROOT, run_dir, "config.json")
+        with open(cfg_path) as fh:
+            cfg = json.load(fh)
+        cfg = cfg.get("config", cfg)
+        out.append((m, f"{m}={os.path.join(ROOT, path)}", status, budget(cfg, rows)))
+    return out
+
+
+def score(entries, family, factor, data_root):
+    """``{label: {psnr, ssim, temporal}}`` of the family at ``factor``."""
+    _, dataset, pattern = FAMILIES[family]
+    if family != "external":
+        per_frame, _ = evaluate.evaluate(entries, os.path.join(data_root, dataset), factor,
+                                         videos=pattern, progress=False)
+        return evaluate.summarize(per_frame)
+    pooled = {e.label: {"psnr": [], "ssim": [], "temporal": []} for e in entries}
+    for clip in CLIPS:
+        path = os.path.join(data_root, dataset, f"{clip}-x{factor}.h5")
+        if not os.path.exists(path):
+            raise SystemExit(f"{path} is missing: python experiments/external/render_mitsuba.py")
+        per_frame, _ = evaluate.evaluate(entries, path, factor, progress=False)
+        for lab, d in per_frame.items():
+            for k in pooled[lab]:
+                pooled[lab][k].append(d[k])
+    return evaluate.summarize({lab: {k: np.concatenate(v) for k, v in d.items()}
+                               for lab, d in pooled.items()})
+
+
+def targets(results):
+    """The issue's targets as ``(what, margin in dB, met)`` from ``results[f][family]``."""
+    out = []
+
+    def psnr(f, fam, lab):
+        return results.get(str(f), {}).get(fam, {}).get(lab, {}).get("psnr")
+
+    for f, need in ((4, 2.0), (2, 1.5)):
+        for fam in ("random", "handmade"):
+            a, b = psnr(f, fam, "dlctus"), psnr(f, fam, "tus")
+            if a is not None and b is not None:
+                out.append((f"DLCTUS - TUS >= {need} dB, {fam}, {f}x", a - b, a - b >= need))
+        a, b = psnr(f, "external", "dlctus"), psnr(f, "external", "tus")
+        if a is not None and b is not None:
+            out.append((f"DLCTUS - TUS > 0, external, {f}x", a - b, a > b))
+        for m in SYSTEMS:
+            for fam in FAMILIES:
+                a, b = psnr(f, fam, m), psnr(f, fam, "jau")
+                if a is not None and b is not None:
+                    out.append((f"{m} - JAU > 0, {fam}, {f}x", a - b, a > b))
+    for fam in FAMILIES:
+        a, b = psnr(4, fam, "nsrr"), psnr(4, fam, "tus")
+        if a is not None and b is not None:
+            out.append((f"NSRR - TUS > 0, {fam}, 4x", a - b, a > b))
+    return out
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--factors", type=int, nargs="+", default=[4, 2], choices=(2, 4))
+    p.add_argument("--families", nargs="+", default=list(FAMILIES), choices=list(FAMILIES))
+    p.add_argument("--data-root", default=ROOT,
+                   help="folder holding data/diverse.h5 and data/external/")
+    p.add_argument("--name", default="comparison-table")
+    args = p.parse_args(argv)
+    for fam in args.families:  # every input checked before the first evaluation
+        path = os.path.join(args.data_root, FAMILIES[fam][1])
+        if not os.path.exists(path):
+            p.error(f"--families {fam}: {path} is missing (see this script's docstring)")
+    results, lines = {}, []
+    for f in args.factors:
+        rows = systems(f)
+        entries = models.load_all([spec for _, spec, _, _ in rows if spec], f)
+        res = results[str(f)] = {fam: score(entries, fam, f, args.data_root)
+                                 for fam in args.families}
+        lines += [f"**{f}x** (each cell: PSNR dB / SSIM / temporal error)", "",
+                  "| system | weights | " + " | ".join(FAMILIES[fam][0] for fam in args.families)
+                  + " | Adam steps | crop | frames | training wall time |",
+                  "| --- | --- | " + "--- | " * len(args.families) + "--- | --- | --- | --- |"]
+        for lab, spec, status, b in rows:
+            cells = []
+            for fam in args.families:
+                s = res[fam].get(lab)
+                cells.append(f"{s['psnr']:.2f} / {s['ssim']:.4f} / {s['temporal']:.5f}"
+                              if s else "-")
+            bud = (f"{b['steps']:,} | {b['crop']} | {b['frames']} | {b['seconds'] / 3600:.1f} h"
+                   if b else "- | - | - | -")
+            lines.append(f"| {lab} | {status} | " + " | ".join(cells) + f" | {bud} |")
+            if b:
+                results[str(f)].setdefault("budget", {})[lab] = dict(b, status=status)
+        lines.append("")
+    tg = targets(results)
+    lines += ["Targets (PSNR margins):", "", "| target | margin (dB) | met |",
+              "| --- | --- | --- |"]
+    lines += [f"| {what} | {m:+.2f} | {'yes' if ok else '**no**'} |" for what, m, ok in tg]
+    results["targets"] = [{"target": w, "margin_db": m, "met": bool(ok)} for w, m, ok in tg]
+    write(args.name, "\n".join(lines), results,
+          note="Training wall time: the sum of the per-epoch times of the run's log, on one "
+               "core of a 2-core machine often shared with other work (docs/comparison.md).")
+
+
+if __name__ == "__main__":
+    main()
