@@ -19,16 +19,26 @@ import sys
 from common import RESULTS, ROOT  # noqa: E402
 
 SECTIONS = [
-    ("evaluation", "Evaluation: every system on the test videos", "per_frame_x4.png"),
+    ("comparison-table", "Every system on the three test families (randomized scenes, "
+     "hand-made scenes, an independent renderer)", None),
+    ("evaluation", "Evaluation on the `default` data's test split (earlier weights)",
+     "per_frame_x4.png"),
     ("pareto", "What accuracy costs in time (and the ablations of thesis Tables 13, 14, 16)",
      "pareto.png"),
+    ("ablation-accumulation", "Accumulation buffer on/off at the `diverse` recipe, over "
+     "seeds (thesis Table 16; `python experiments/ablations.py --study accumulation`)", None),
+    ("ablation-warp", "Bilinear against bicubic reprojection at the `diverse` recipe "
+     "(thesis Table 13; `python experiments/ablations.py --study warp`)", None),
+    ("ablation-theta", "L1 against L_st-linear at the `diverse` recipe (thesis Table 10; "
+     "`python experiments/ablations.py --study theta`)", None),
     ("theta", "The θ sweep (thesis Table 10)", "theta.png"),
     ("seqlen", "Sequence length, BPTT, truncated BPTT and remat", "seqlen.png"),
     ("stability", "Long-run numerical stability", "stability.png"),
 ]
 
 RUNS = {
-    "full": [["experiments/sweep_theta.py"],
+    "full": [["experiments/comparison_table.py"],
+             ["experiments/sweep_theta.py"],
              ["experiments/pareto.py", "--train-ablations"]
              + [f"--checkpoint={m}=experiments/weights/{m}-x4.msgpack"
                 for m in ("nsrr", "nsrr-fast", "kpn", "mlp")],
@@ -44,6 +54,9 @@ RUNS = {
 
 # Reading notes that hold for any run of the section
 NOTES = {
+    "evaluation": "This table is the `default` data's test split with the systems' "
+                  "earlier weights (DLCTUS trained on the built-in scenes, the comparison "
+                  "systems' short first runs); the table above replaces it.",
     "pareto": "Reading the ablation rows: a network whose clamped outputs saturate stops "
               "learning; `experiments/pareto.py` labels it `collapsed` when its validation "
               "loss repeats exactly (see `docs/weights.md`: the `accumulation=False` "

@@ -5,6 +5,11 @@ to ``docs/results/mutation/results.md``.
 
     python experiments/mutation.py                          # every module (hours)
     python experiments/mutation.py --modules jtus/metrics.py --workdir runs/mutation
+    python experiments/mutation.py --save-only        # results so far, to commit
+
+A run spans sessions and machines: each module's per-mutant results are copied to
+``experiments/checkpoints/mutation/`` after its run (or by ``--save-only`` while it
+runs), and a scratch copy without results starts from that copy.
 
 Two facts about JAX shape the mutmut configuration (docs/testing.md):
 - mutmut 3 forks a child per mutant. A child forked from a process whose XLA runtime
@@ -93,9 +98,36 @@ def config_block(module, tests):
             f'forkserver_warmup = "none"\n')
 
 
+SAVED = os.path.join(ROOT, "experiments", "checkpoints", "mutation")
+
+
+def meta_paths(module, workdir):
+    """``(mutmut's result file for module in the scratch copy, its committed copy)``.
+    mutmut keeps each mutant's exit code in ``mutants/<module>.meta`` with a hash of every
+    function, and on a new run keeps the results of the functions whose hash is the same:
+    restoring the file into a fresh scratch copy resumes a run on another machine."""
+    dest = os.path.join(workdir, module.replace("/", "_").removesuffix(".py"))
+    return (os.path.join(dest, "mutants", module + ".meta"),
+            os.path.join(SAVED, module.replace("/", "_") + ".meta"))
+
+
+def save_meta(module, workdir):
+    live, saved = meta_paths(module, workdir)
+    if os.path.exists(live):
+        os.makedirs(SAVED, exist_ok=True)
+        shutil.copyfile(live, saved + ".tmp")
+        os.replace(saved + ".tmp", saved)
+        print(f"saved {os.path.relpath(live, ROOT)} -> {os.path.relpath(saved, ROOT)}")
+
+
 def run_module(module, workdir, max_children, recheck=False):
     dest = os.path.join(workdir, module.replace("/", "_").removesuffix(".py"))
     scratch_copy(dest)  # the current sources and tests (mutmut re-mutates what changed)
+    live, saved = meta_paths(module, workdir)
+    if not os.path.exists(live) and os.path.exists(saved):
+        os.makedirs(os.path.dirname(live), exist_ok=True)
+        shutil.copyfile(saved, live)
+        print(f"resuming {module} from {os.path.relpath(saved, ROOT)}")
     with open(os.path.join(dest, "pyproject.toml"), "a") as fh:
         fh.write(config_block(module, TESTS[module]))
     env = dict(os.environ, JAX_DISABLE_JIT="1")
@@ -115,6 +147,7 @@ def run_module(module, workdir, max_children, recheck=False):
         if survivors:
             subprocess.run(["mutmut", "run", "--max-children", str(max_children), *survivors],
                            cwd=dest, env=env, stdout=subprocess.DEVNULL, check=False)
+    save_meta(module, workdir)
     return status(), time.perf_counter() - t0
 
 
@@ -135,7 +168,14 @@ def main(argv=None):
     p.add_argument("--recheck", action="store_true",
                    help="run only the surviving (and untested) mutants of earlier runs again, "
                         "against the tests as they are now (no new mutants)")
+    p.add_argument("--save-only", action="store_true",
+                   help="copy each module's mutmut results (mutants/<module>.meta) to "
+                        "experiments/checkpoints/mutation/ to commit, and exit")
     args = p.parse_args(argv)
+    if args.save_only:
+        for m in args.modules:
+            save_meta(m, args.workdir)
+        return
     if shutil.which("mutmut") is None:
         sys.exit("error: mutmut is not installed (pip install mutmut)")
     rows = []
