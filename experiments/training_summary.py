@@ -5,7 +5,7 @@ epoch, at its best and at the end, and its change over the last fifth of the epo
 
 Reads the finished runs' exported logs (``experiments/weights/<model>-x<f>-training.csv``)
 and the unfinished runs' committed checkpoints (``experiments/checkpoints/<model>-
-diverse-x<f>/metrics.csv``, newer when both exist) and writes a markdown table:
+diverse-x<f>/metrics.csv``, when it is the longer log) and writes a markdown table:
 
     python experiments/training_summary.py --out docs/results/comparison-training.md
 """
@@ -49,7 +49,10 @@ def find(model, factor, root="."):
                 cfg = json.load(fh)
             cfg = cfg.get("config", cfg)
             if rows and cfg.get("dataset", "").endswith("diverse.h5"):
-                cands.append((os.path.getmtime(p), rows, cfg["epochs"], csv_path))
+                # the longer log is the newer (a run only grows; file times mean nothing
+                # in a fresh clone), the exported one on a tie (it is the finished run)
+                cands.append(((len(rows), "weights/" in csv_path), rows, cfg["epochs"],
+                              csv_path))
     if not cands:
         return None
     _, rows, planned, src = max(cands, key=lambda c: c[0])

@@ -334,3 +334,31 @@ def test_comparison_table_systems_and_targets():
                    "DLCTUS - TUS >= 1.5 dB, handmade, 2x": (1.4, False),
                    "mlp - JAU > 0, handmade, 2x": (0.5, True),
                    "NSRR - TUS > 0, random, 4x": (-0.5, False)}
+
+
+def test_training_summary_takes_the_longer_log(tmp_path):
+    """A run's newest log is its longer one (file times mean nothing in a fresh clone);
+    on a tie the exported (finished) one; logs of other data are not counted."""
+    ts = _load_experiment("training_summary")
+
+    def log(rel, epochs, dataset="data/diverse.h5", cfg_name="config.json"):
+        d = tmp_path / os.path.dirname(rel)
+        d.mkdir(parents=True, exist_ok=True)
+        rows = "epoch,step,val_psnr,seconds\n" + "".join(
+            f"{e},{100 * e},{20 + e},10\n" for e in range(1, epochs + 1))
+        (tmp_path / rel).write_text(rows)
+        (d / cfg_name).write_text(json.dumps({"epochs": 40, "dataset": dataset}))
+
+    log("experiments/checkpoints/kpn-diverse-x2/metrics.csv", 20)
+    log("experiments/weights/kpn-x2-training.csv", 40, cfg_name="kpn-x2.json")
+    rows, planned, src = ts.find("kpn", 2, str(tmp_path))
+    assert (len(rows), planned, src) == (40, 40, "experiments/weights/kpn-x2-training.csv")
+    log("experiments/checkpoints/mlp-diverse-x4/metrics.csv", 7)
+    log("experiments/weights/mlp-x4-training.csv", 3, cfg_name="mlp-x4.json")
+    assert ts.find("mlp", 4, str(tmp_path))[2].startswith("experiments/checkpoints/")
+    log("experiments/weights/nsrr-x4-training.csv", 3, dataset="data/default.h5",
+        cfg_name="nsrr-x4.json")
+    assert ts.find("nsrr", 4, str(tmp_path)) is None
+    s = ts.summarize(rows, planned)
+    assert (s["epochs"], s["steps"], s["best"], s["last_fifth"], s["flat"]) == \
+        (40, 4000, 60.0, 8.0, False)
