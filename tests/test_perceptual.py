@@ -77,6 +77,15 @@ def test_nsrr_loss_adds_weighted_term(vgg_file):
     # NSRR's weight of the perceptual term, 0.1, is the default
     default = losses.make("ssim", 4, perceptual_weights=path)(out, tgt, None, None, None, None)
     assert float(default) == float(full)
+    # the same default in with_perceptual itself (the wrapper the recipe calls)
+    ssim = losses.make("ssim", 4)
+    wrapped = losses.with_perceptual(ssim, path)(out, tgt, None, None, None, None)
+    assert float(wrapped) == float(full)
+    # a weight of 0 is allowed (the term is off), a negative one is refused by name
+    zero = losses.with_perceptual(ssim, path, weight=0.0)(out, tgt, None, None, None, None)
+    assert float(zero) == float(base)
+    with pytest.raises(ValueError, match=r"perceptual_weight: expected a value >= 0, got -0.1"):
+        losses.with_perceptual(ssim, path, weight=-0.1)
 
 
 def test_bad_weight_files(tmp_path, vgg_file):
