@@ -4,7 +4,7 @@
 # (warm-up then cosine decay, gradient clipping, validation on held-out seeds every
 # epoch; docs/weights.md), until the schedule ends. Rerunning the script continues every
 # unfinished run from its checkpoint (--resume), so it spans as many sessions as needed;
-# a finished run is skipped. Crops and sequences are smaller than DLCTUS's (128, 16):
+# a finished run (its exported log has every epoch) is skipped. Crops and sequences are smaller than DLCTUS's (128, 16):
 # NSRR costs 33x DLCTUS's FLOPs per pixel, KPN 4.4x (python -m jtus.cost). KPN takes
 # its loss on the last of its 8 frames only, as Herveau et al. do (sec. 5.3): with the
 # loss on every frame its validation PSNR fell below its first epoch's (docs/comparison.md).
@@ -19,7 +19,7 @@
 #
 # Runs land in runs/<model>-diverse-x<f>/; when a run has finished its schedule its
 # parameters are exported to experiments/weights/<model>-x<f>.msgpack (with the config
-# and the per-epoch log), which the README's evaluation command reads. Pass
+# and the per-epoch log), which the README's table reads (python experiments/comparison_table.py). Pass
 # --perceptual-weights FILE through EXTRA to add NSRR's VGG-16 term.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -46,6 +46,25 @@ for m in ${ONLY:-mlp kpn nsrr-fast nsrr}; do
         cp "$wd"/checkpoint.msgpack "$wd"/config.json "$wd"/metrics.* "$saved"/
         echo "saved $wd -> $saved"
       fi
+      continue
+    fi
+    # a run whose exported log (experiments/weights/) has finished the schedule is done,
+    # on any machine: nothing to resume or retrain
+    planned=$(sed -n 's/.*--epochs \([0-9]*\).*/\1/p' <<< "${args[$m]} ${override[$m-$f]:-}")
+    if python - "$m" "$f" "$planned" <<'EOF'
+import csv, json, sys
+m, f, planned = sys.argv[1], sys.argv[2], int(sys.argv[3])
+try:
+    cfg = json.load(open(f"experiments/weights/{m}-x{f}.json"))
+    rows = list(csv.DictReader(open(f"experiments/weights/{m}-x{f}-training.csv")))
+except OSError:
+    sys.exit(1)
+done = cfg.get("dataset", "").endswith("diverse.h5") and rows and \
+    int(rows[-1]["epoch"]) >= planned
+sys.exit(0 if done else 1)
+EOF
+    then
+      echo "$m ${f}x: finished (experiments/weights/$m-x$f.*); skipped"
       continue
     fi
     if [ ! -f "$wd/checkpoint.msgpack" ] && [ -f "$saved/checkpoint.msgpack" ]; then
