@@ -4,9 +4,9 @@
 # (warm-up then cosine decay, gradient clipping, validation on held-out seeds every
 # epoch; docs/weights.md), until the schedule ends. Rerunning the script continues every
 # unfinished run from its checkpoint (--resume), so it spans as many sessions as needed;
-# a finished run (its exported log has every epoch) is skipped. Crops and sequences are smaller than DLCTUS's (128, 16):
-# NSRR costs 33x DLCTUS's FLOPs per pixel, KPN 4.4x (python -m jtus.cost). KPN takes
-# its loss on the last of its 8 frames only, as Herveau et al. do (sec. 5.3): with the
+# a finished run (its exported log has every epoch) is skipped. Crops and sequences
+# are smaller than DLCTUS's (128, 16): NSRR costs 33x DLCTUS's FLOPs per pixel, KPN
+# 4.4x (python -m jtus.cost). KPN takes its loss on the last of its 8 frames only, as Herveau et al. do (sec. 5.3): with the
 # loss on every frame its validation PSNR fell below its first epoch's (docs/comparison.md).
 #
 #   bash experiments/train_comparison.sh                 # everything, in order
@@ -19,8 +19,9 @@
 #
 # Runs land in runs/<model>-diverse-x<f>/; when a run has finished its schedule its
 # parameters are exported to experiments/weights/<model>-x<f>.msgpack (with the config
-# and the per-epoch log), which the README's table reads (python experiments/comparison_table.py). Pass
-# --perceptual-weights FILE through EXTRA to add NSRR's VGG-16 term.
+# and the per-epoch log), which the README's table reads (python
+# experiments/comparison_table.py). Pass --perceptual-weights FILE through EXTRA to
+# add NSRR's VGG-16 term.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 common="--preset diverse --no-eval --quiet --val-videos 4 ${EXTRA:-}"
