@@ -6,8 +6,9 @@
 # unfinished run from its checkpoint (--resume), so it spans as many sessions as needed;
 # a finished run (its exported log has every epoch) is skipped. Crops and sequences
 # are smaller than DLCTUS's (128, 16): NSRR costs 33x DLCTUS's FLOPs per pixel, KPN
-# 4.4x (python -m jtus.cost). KPN takes its loss on the last of its 8 frames only, as Herveau et al. do (sec. 5.3): with the
-# loss on every frame its validation PSNR fell below its first epoch's (docs/comparison.md).
+# 4.4x (python -m jtus.cost). KPN takes its loss on the last of its 8 frames only, as
+# Herveau et al. do (sec. 5.3): with the loss on every frame its validation PSNR fell
+# below its first epoch's (docs/comparison.md).
 #
 #   bash experiments/train_comparison.sh                 # everything, in order
 #   ONLY="mlp kpn" FACTORS=4 bash experiments/train_comparison.sh
