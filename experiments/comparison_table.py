@@ -32,7 +32,7 @@ import os
 import numpy as np
 
 from common import ROOT, write  # noqa: I001  (experiments/ on sys.path)
-from training_summary import SYSTEMS, find
+from training_summary import SYSTEMS, find, summarize
 
 from jtus import evaluate, models
 
@@ -46,8 +46,9 @@ CLIPS = ("library", "fence", "turntable")
 
 def budget(cfg, rows):
     """``{steps, crop, frames, seconds}`` of a run from its config and per-epoch log."""
-    return {"steps": int(rows[-1]["step"]), "crop": cfg["crop"], "frames": cfg["seq_len"],
-            "seconds": sum(float(r["seconds"]) for r in rows)}
+    s = summarize(rows, cfg["epochs"])
+    return {"steps": s["steps"], "crop": cfg["crop"], "frames": cfg["seq_len"],
+            "seconds": s["seconds"]}
 
 
 def systems(factor):
