@@ -29,9 +29,8 @@ import csv
 import json
 import os
 
-import numpy as np
-
 from common import ROOT, write  # noqa: I001  (experiments/ on sys.path)
+from external.evaluate_external import evaluate_clips
 from training_summary import SYSTEMS, find, summarize
 
 from jtus import evaluate, models
@@ -41,7 +40,6 @@ FAMILIES = {
     "handmade": ("hand-made scenes, varied jitter", "data/diverse.h5", "[!r]*"),
     "external": ("independent renderer (Mitsuba 3)", "data/external", None),
 }
-CLIPS = ("library", "fence", "turntable")
 
 
 def budget(cfg, rows):
@@ -88,17 +86,7 @@ def score(entries, family, factor, data_root):
         per_frame, _ = evaluate.evaluate(entries, os.path.join(data_root, dataset), factor,
                                          videos=pattern, progress=False)
         return evaluate.summarize(per_frame)
-    pooled = {e.label: {"psnr": [], "ssim": [], "temporal": []} for e in entries}
-    for clip in CLIPS:
-        path = os.path.join(data_root, dataset, f"{clip}-x{factor}.h5")
-        if not os.path.exists(path):
-            raise SystemExit(f"{path} is missing: python experiments/external/render_mitsuba.py")
-        per_frame, _ = evaluate.evaluate(entries, path, factor, progress=False)
-        for lab, d in per_frame.items():
-            for k in pooled[lab]:
-                pooled[lab][k].append(d[k])
-    return evaluate.summarize({lab: {k: np.concatenate(v) for k, v in d.items()}
-                               for lab, d in pooled.items()})
+    return evaluate_clips(entries, factor, os.path.join(data_root, dataset))[1]
 
 
 def targets(results):
