@@ -31,12 +31,12 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
-import shutil
 import sys
 
 import numpy as np
 
 from common import ROOT, evaluate_videos, write  # noqa: I001  (experiments/ on sys.path)
+from saved_runs import SAVED, copy_run
 
 from jtus import recipe, train
 from jtus.config import PRESETS
@@ -62,25 +62,10 @@ def slug(label):
     return "".join(c if c.isalnum() else "_" for c in label).strip("_").lower()
 
 
-SAVED = ("checkpoint.msgpack", "config.json", "metrics.json", "metrics.csv")
-
-
 def saved_dir(work):
     """Where a run's checkpoint is kept between sessions (committed)."""
     study, run = os.path.split(os.path.relpath(work, os.path.join(ROOT, "runs")))
     return os.path.join(ROOT, "experiments", "checkpoints", study, run)
-
-
-def copy_run(src, dst):
-    """Copy a run's files (those that exist) from ``src`` to ``dst``; True if it had a
-    checkpoint."""
-    if not os.path.exists(os.path.join(src, SAVED[0])):
-        return False
-    os.makedirs(dst, exist_ok=True)
-    for name in SAVED:
-        if os.path.exists(os.path.join(src, name)):
-            shutil.copy2(os.path.join(src, name), os.path.join(dst, name))
-    return True
 
 
 def save_runs(study):

@@ -43,34 +43,18 @@ for m in ${ONLY:-mlp kpn nsrr-fast nsrr}; do
     wd=runs/$m-diverse-x$f
     saved=experiments/checkpoints/$m-diverse-x$f
     if [ -n "${SAVE_ONLY:-}" ]; then
-      if [ -f "$wd/checkpoint.msgpack" ]; then
-        mkdir -p "$saved"
-        cp "$wd"/checkpoint.msgpack "$wd"/config.json "$wd"/metrics.* "$saved"/
-        echo "saved $wd -> $saved"
-      fi
+      python experiments/saved_runs.py "$wd" "$saved" || true
       continue
     fi
     # a run whose exported log (experiments/weights/) has finished the schedule is done,
     # on any machine: nothing to resume or retrain
     planned=$(sed -n 's/.*--epochs \([0-9]*\).*/\1/p' <<< "${args[$m]} ${override[$m-$f]:-}")
-    if python - "$m" "$f" "$planned" <<'EOF'
-import csv, json, sys
-m, f, planned = sys.argv[1], sys.argv[2], int(sys.argv[3])
-try:
-    cfg = json.load(open(f"experiments/weights/{m}-x{f}.json"))
-    rows = list(csv.DictReader(open(f"experiments/weights/{m}-x{f}-training.csv")))
-except OSError:
-    sys.exit(1)
-done = cfg.get("dataset", "").endswith("diverse.h5") and rows and \
-    int(rows[-1]["epoch"]) >= planned
-sys.exit(0 if done else 1)
-EOF
-    then
+    if python experiments/training_summary.py --finished "$m" "$f" "$planned"; then
       echo "$m ${f}x: finished (experiments/weights/$m-x$f.*); skipped"
       continue
     fi
-    if [ ! -f "$wd/checkpoint.msgpack" ] && [ -f "$saved/checkpoint.msgpack" ]; then
-      mkdir -p "$wd" && cp "$saved"/* "$wd"/ && echo "resuming $wd from $saved"
+    if [ ! -f "$wd/checkpoint.msgpack" ] && python experiments/saved_runs.py "$saved" "$wd"; then
+      echo "resuming $wd from $saved"
     fi
     resume=""
     [ -f "$wd/checkpoint.msgpack" ] && resume="--resume"

@@ -16,6 +16,7 @@ import argparse
 import csv
 import json
 import os
+import sys
 
 SYSTEMS = ("mlp", "kpn", "nsrr-fast", "nsrr")
 FACTORS = (4, 2)
@@ -59,6 +60,15 @@ def find(model, factor, root="."):
     return rows, planned, src
 
 
+def finished(model, factor, epochs, root="."):
+    """True if the run's exported log (``experiments/weights/``) is of the ``diverse``
+    data and reaches ``epochs``: a finished run, on any machine, with nothing to resume
+    or retrain."""
+    got = find(model, factor, root)
+    return (got is not None and got[2].startswith("experiments/weights/")
+            and int(got[0][-1]["epoch"]) >= epochs)
+
+
 def table(root="."):
     lines = ["| system | factor | epochs (of) | Adam steps | training s | val PSNR first / best / "
              "last (dB) | last fifth (dB) | flat | log |",
@@ -82,7 +92,13 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", help="write the table (markdown) here as well")
+    p.add_argument("--finished", nargs=3, metavar=("MODEL", "FACTOR", "EPOCHS"),
+                   help="print nothing; exit 0 if that run's exported log reaches EPOCHS, "
+                        "1 if not (train_comparison.sh skips finished runs)")
     args = p.parse_args(argv)
+    if args.finished:
+        m, f, e = args.finished
+        return 0 if finished(m, int(f), int(e)) else 1
     text = table()
     print(text)
     if args.out:
@@ -95,4 +111,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

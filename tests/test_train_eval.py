@@ -290,17 +290,20 @@ def test_ablation_studies_build_valid_models():
         "experiments", "checkpoints", "ablation-warp", "bilinear-s4")
 
 
-def test_ablation_runs_are_saved_and_restored(tmp_path):
-    """A study spans sessions through committed copies of its runs' checkpoints."""
-    ablations = _load_ablations()
+def test_runs_are_saved_and_restored(tmp_path):
+    """Ablation studies and comparison runs span sessions through committed copies of
+    their checkpoints (experiments/saved_runs.py, called by ablations.py and by
+    train_comparison.sh as a command: exit 1 when there is nothing to copy)."""
+    saved_runs = _load_experiment("saved_runs")
     src, dst = tmp_path / "run", tmp_path / "saved"
     src.mkdir()
-    assert not ablations.copy_run(str(src), str(dst))  # no checkpoint: nothing copied
+    assert not saved_runs.copy_run(str(src), str(dst))  # no checkpoint: nothing copied
+    assert saved_runs.main([str(src), str(dst)]) == 1
     assert not dst.exists()
     for name, text in (("checkpoint.msgpack", "ck"), ("config.json", "{}"),
-                       ("metrics.csv", "epoch")):
+                       ("metrics.csv", "epoch"), ("training.png", "not kept")):
         (src / name).write_text(text)
-    assert ablations.copy_run(str(src), str(dst))
+    assert saved_runs.main([str(src), str(dst)]) == 0
     assert sorted(os.listdir(dst)) == ["checkpoint.msgpack", "config.json", "metrics.csv"]
     assert (dst / "checkpoint.msgpack").read_text() == "ck"
 
@@ -362,3 +365,9 @@ def test_training_summary_takes_the_longer_log(tmp_path):
     s = ts.summarize(rows, planned)
     assert (s["epochs"], s["steps"], s["best"], s["last_fifth"], s["flat"]) == \
         (40, 4000, 60.0, 8.0, False)
+    # train_comparison.sh skips a run only when its exported log reaches the planned
+    # epochs: not when the longer log is a checkpoint's, nor when more epochs are planned
+    assert ts.finished("kpn", 2, 40, str(tmp_path))
+    assert not ts.finished("kpn", 2, 41, str(tmp_path))
+    assert not ts.finished("mlp", 4, 3, str(tmp_path))
+    assert not ts.finished("nsrr", 4, 3, str(tmp_path))
