@@ -27,9 +27,7 @@ from jtus.sim.video import static_hold
 
 def curve(entry, frames, targets):
     fr = jax.tree_util.tree_map(jnp.asarray, frames)
-    state = entry.model.init_state(jax.tree_util.tree_map(lambda x: x[0], fr))
-    outs, _ = jax.jit(lambda p, s, f: rollout.outputs(entry.model.step, p, s, f))(
-        entry.params, state, fr)
+    outs = rollout.video(entry.model, entry.params, fr)
     return np.asarray(jax.vmap(metrics.psnr)(outs, jnp.asarray(targets)))[:, 0]
 
 

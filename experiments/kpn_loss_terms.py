@@ -37,7 +37,7 @@ def terms(config, params, seed=3):
         fr, tg = jax.tree_util.tree_map(jnp.asarray, ds.crops(
             "train", config.factor, config.batch, config.seq_len, config.crop,
             np.random.default_rng(seed)))
-    outs = rollout.outputs(model.step, params, rollout.first_state(model, fr), fr)[0]
+    outs = rollout.video(model, params, fr)
     last = jax.tree_util.tree_map(lambda x: x[-1], fr)
     out = {}
     for name, w in zip(TERMS, np.eye(3)):

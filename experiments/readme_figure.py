@@ -88,9 +88,7 @@ def window(rule, frame, targets, factor):
 
 def outputs(entry, frame):
     fr = jax.tree_util.tree_map(jnp.asarray, frame)
-    outs, _ = jax.jit(lambda p, s, f: rollout.outputs(entry.model.step, p, s, f))(
-        entry.params, rollout.first_state(entry.model, fr), fr)
-    return np.asarray(outs[-1, 0])
+    return np.asarray(rollout.video(entry.model, entry.params, fr)[-1, 0])
 
 
 def main(argv=None):

@@ -125,8 +125,7 @@ def main(argv=None):
         ref = None
         for dt in ("float32", "bfloat16", "float16"):
             m = models.build("dlctus", args.factor, dtype=dt)
-            outs = np.asarray(jax.jit(lambda p, s, f: rollout.outputs(m.step, p, s, f, check=False)[0])(
-                shipped.params, rollout.first_state(m, sub[0]), sub[0]))
+            outs = np.asarray(rollout.video(m, shipped.params, sub[0], check=False))
             if ref is None:
                 ref = outs
             prec.append({"dtype": dt, "finite": bool(np.all(np.isfinite(outs))),

@@ -106,8 +106,7 @@ def main(argv=None):
                 from common import evaluate_videos
                 q = evaluate_videos(model, ts.params, args.dataset, args.factor,
                                     max_videos=args.max_videos)
-            outs, _ = rollout.outputs(model.step, ts.params, rollout.first_state(model, long_frames),
-                                      long_frames, check=False)
+            outs = rollout.video(model, ts.params, long_frames, check=False)
             tail = slice(-20, None)
             long_psnr = float(jnp.mean(metrics.psnr(outs[tail, 0], long_targets[tail, 0])))
             rows.append({"length": length, "mode": mode, "s_per_step": float(np.median(times)),

@@ -158,8 +158,7 @@ def crop_grid(entries, dataset_path, factor, path, split="test", crop=64, rows=3
             row = [np.repeat(np.repeat(lr, factor, 0), factor, 1)]
             fj = jax.tree_util.tree_map(lambda a: jnp.asarray(a[:t + 1]), frames)
             for e in entries:
-                outs, _ = rollout.outputs(e.model.step, e.params,
-                                          rollout.first_state(e.model, fj), fj)
+                outs = rollout.video(e.model, e.params, fj)
                 row.append(np.asarray(outs[-1, 0])[y:y + c, x:x + c])
             row.append(tgt[y:y + c, x:x + c])
             tiles.append(np.concatenate(row, 1))

@@ -98,6 +98,16 @@ def outputs(step, params, state, frames, *, remat=False, unroll=1, check=True):
     return outs, state
 
 
+def video(model, params, frames, *, check=True):
+    """A model's outputs ``[T,B,H,W,3]`` over a whole video of time-major ``frames``,
+    from its first state (``first_state``), compiled: what evaluation, figures and the
+    ``upsample`` CLI run."""
+    _check(frames, check)
+    run = jax.jit(lambda p, f: outputs(model.step, p, first_state(model, f), f,
+                                       check=False)[0])
+    return run(params, frames)
+
+
 def metrics(step, params, state, frames, targets, metric_fn, *, unroll=1, check=True):
     """Scan and reduce each frame with
     ``metric_fn(out, target, prev_out, prev_target, has_prev, frame) -> pytree``

@@ -77,6 +77,21 @@ def test_scan_equals_python_loop_values_and_vjp(x64):
         np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-12)
 
 
+def test_video_runs_from_the_first_state_float64(x64):
+    """rollout.video (evaluation, figures, the upsample CLI): the step looped in Python
+    from ``init_state`` of the first frame, and a clear error on non-finite input."""
+    model, params, frames, _ = _setup(T=4, dtype=np.float64)
+    got = rollout.video(model, params, frames)
+    s, want = model.init_state(_first(frames)), []
+    for t in range(4):
+        out, s = model.step(params, s, jax.tree_util.tree_map(lambda x: x[t], frames))
+        want.append(out)
+    np.testing.assert_allclose(got, jnp.stack(want), rtol=0, atol=1e-13)
+    bad = frames._replace(color=frames.color.at[2, 0, 1, 1, 0].set(jnp.nan))
+    with pytest.raises(ValueError, match="color"):
+        rollout.video(model, params, bad)
+
+
 def test_check_grads_float64_three_frames(x64):
     config = dlctus.Config(factor=4, warp="bilinear", dtype="float64")
     model, params, frames, targets = _setup(T=3, config=config, dtype=np.float64)
