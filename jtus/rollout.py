@@ -229,6 +229,9 @@ def window_loss(step, loss_fn, params, carry: Carry, frames, targets, *, loss_fr
     if keep_at is not None and not 0 < keep_at <= n:
         raise ValueError(f"keep_at: expected 1..{n}, got {keep_at}")
     reverse = remat == "reverse"
+    if reverse and unroll != 1:
+        raise ValueError(f"unroll: remat='reverse' scans one frame at a time forward and "
+                         f"back; expected 1, got {unroll}")
     body = None if reverse else _body(step, params, remat)
     cuts = sorted({0, n - loss_frames, n} | ({keep_at} if keep_at else set()))
     total, kept = jnp.zeros((), jnp.float32), None

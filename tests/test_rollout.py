@@ -165,6 +165,8 @@ def test_remat_rejects_an_unknown_policy():
     model, params, frames, targets = _setup(T=2)
     with pytest.raises(ValueError, match="remat: expected"):
         _loss_value_and_grad(model, params, frames, targets, 1, remat="everything")
+    with pytest.raises(ValueError, match="unroll: remat='reverse'"):  # it would be ignored
+        _loss_value_and_grad(model, params, frames, targets, 1, remat="reverse", unroll=2)
 
 
 def test_tbptt_with_full_window_equals_bptt():
