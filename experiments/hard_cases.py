@@ -1,7 +1,8 @@
 """Static holds under every supported jitter sequence: does each system settle?
 
     python experiments/hard_cases.py                      # TUS presets and shipped DLCTUS
-    python experiments/hard_cases.py --models tus-mean tus shipped mine=runs/diverse-x4/checkpoint.msgpack
+    python experiments/hard_cases.py --models tus-mean tus shipped \
+        mine=runs/diverse-x4/checkpoint.msgpack
 
 The built-in ``textures`` scene held still at 128x128 (``jtus.sim.video.static_hold``),
 384 frames per jitter sequence and factor. Per system: the first frame's PSNR, the
@@ -48,11 +49,13 @@ def main():
                 c = curve(e, frames, targets)
                 rec = {"factor": factor, "jitter": jit, "system": e.label,
                        "first": float(c[0]), "best": float(c.max()), "best_at": int(c.argmax()),
-                       "last32_mean": float(c[-32:].mean()), "last32_spread": float(np.ptp(c[-32:])),
+                       "last32_mean": float(c[-32:].mean()),
+                       "last32_spread": float(np.ptp(c[-32:])),
                        "max_swing_after_24": float(np.abs(np.diff(c[24:])).max())}
                 data.append(rec)
                 rows.append(f"| {factor}x | {jit} | {e.label} | {rec['first']:.2f} | "
-                            f"{rec['best']:.2f} (frame {rec['best_at']}) | {rec['last32_mean']:.2f} | "
+                            f"{rec['best']:.2f} (frame {rec['best_at']}) | "
+                            f"{rec['last32_mean']:.2f} | "
                             f"{rec['last32_spread']:.3f} | {rec['max_swing_after_24']:.3f} |")
                 print(rows[-1], flush=True)
     table = ("| factor | jitter | system | first frame (dB) | best (dB) | last 32 mean (dB) | "

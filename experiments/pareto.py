@@ -96,8 +96,8 @@ def main(argv=None):
             # a network whose clamped outputs saturate stops learning (docs/weights.md):
             # its validation loss then repeats exactly from epoch to epoch
             collapsed = len(hist) > 2 and len({h["val_loss"] for h in hist[1:]}) == 1
-            rec = {"label": f"dlctus accumulation={acc} ({args.ablation_epochs}x100 steps"
-                            f"{'; collapsed: validation constant from epoch 2' if collapsed else ''})",
+            why = "; collapsed: validation constant from epoch 2" if collapsed else ""
+            rec = {"label": f"dlctus accumulation={acc} ({args.ablation_epochs}x100 steps{why})",
                    "model": "dlctus", "collapsed": collapsed}
             rec.update(evaluate_videos(recipe.model_for(cfg), params, args.dataset, args.factor,
                                        max_videos=args.max_videos))
@@ -119,7 +119,8 @@ def main(argv=None):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    pts = [(r[f"ms_{big}"], r["psnr"], r["label"]) for r in rows if "psnr" in r and f"ms_{big}" in r]
+    pts = [(r[f"ms_{big}"], r["psnr"], r["label"]) for r in rows
+           if "psnr" in r and f"ms_{big}" in r]
     fig, ax = plt.subplots(figsize=(8, 5))
     for ms, ps, lab in pts:
         ax.scatter(ms, ps)

@@ -80,7 +80,8 @@ def main(argv=None):
     for length in args.lengths:
         for mode in args.modes:
             config = _config(base, length, mode)
-            model, loss_fn, opt = recipe.model_for(config), recipe.loss_for(config), optax.adam(config.lr)
+            model, loss_fn = recipe.model_for(config), recipe.loss_for(config)
+            opt = optax.adam(config.lr)
             window, lf, keep, windows = recipe.plan(config)
             step = train.make_train_step(model, loss_fn, opt, loss_frames=lf, keep_at=keep,
                                          remat=config.remat)
@@ -114,14 +115,16 @@ def main(argv=None):
                          "temporal": q["temporal"], "long_psnr": long_psnr})
             print(rows[-1])
     table = ["| sequence | mode | s / step | memory (MiB) | PSNR (dB) | SSIM | temporal | "
-             f"PSNR after {args.long_frames - 20} frames |", "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+             f"PSNR after {args.long_frames - 20} frames |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in rows:
         table.append(f"| {r['length']} | {r['mode']} | {r['s_per_step']:.3f} | "
                      f"{r['memory_mb']:.0f} | {r['psnr']:.2f} | {r['ssim']:.4f} | "
                      f"{r['temporal']:.5f} | {r['long_psnr']:.2f} |")
     d = write("seqlen", "\n".join(table), rows,
-              f"DLCTUS {args.factor}x, crop {args.crop}, batch {args.batch}, {args.steps} steps per "
-              f"row (TBPTT: k1 = k2 = length / 2); trained on `{os.path.relpath(args.dataset, ROOT)}`, "
+              f"DLCTUS {args.factor}x, crop {args.crop}, batch {args.batch}, {args.steps} "
+              f"steps per row (TBPTT: k1 = k2 = length / 2); trained on "
+              f"`{os.path.relpath(args.dataset, ROOT)}`, "
               f"quality on {args.max_videos} of its test videos.")
     import matplotlib
     matplotlib.use("Agg")

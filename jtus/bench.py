@@ -390,7 +390,8 @@ def markdown(report):
                 f"{r.get('formulation', '')} | {r['ms']:.1f} | "
                 f"{r['gflop']:.2f} | {r['gflops']:.1f} | {r.get('network_ms', float('nan')):.1f} | "
                 f"{r.get('network_gflops', float('nan')):.1f} | {pct} | "
-                f"{r.get('torch_ms', float('nan')):.1f} | {r.get('torch_over_jtus', float('nan')):.2f} |")
+                f"{r.get('torch_ms', float('nan')):.1f} | "
+                f"{r.get('torch_over_jtus', float('nan')):.2f} |")
         lines.append("")
     if "train" in report:
         r = report["train"]
@@ -399,19 +400,21 @@ def markdown(report):
                   f"sequence {r['seq']}, loss on the last {r['loss_frames']}, Adam; {scan} scan, "
                   f"{r['conv_backward']} conv backward{', remat' if r['remat'] else ''}"
                   f"{', preparation hoisted' if r.get('hoist') else ''}): "
-                  f"jtus {r['s_per_step']:.3f} s, PyTorch {r.get('torch_s_per_step', float('nan')):.3f} s, "
+                  f"jtus {r['s_per_step']:.3f} s, "
+                  f"PyTorch {r.get('torch_s_per_step', float('nan')):.3f} s, "
                   f"torch/jtus {r.get('torch_over_jtus', float('nan')):.2f}.",
                   "", f"Training throughput: jtus {r['frames_per_s']:.1f} frames/s, PyTorch "
                   f"{r.get('torch_frames_per_s', float('nan')):.1f} frames/s (batch x sequence "
                   f"per step); compiled step memory {r.get('peak_mib', float('nan')):.0f} MiB "
                   f"(XLA's plan: temporaries, arguments, outputs)."]
         if "bound_s_at_conv_peak" in r:
+            torch_over_bound = r.get("torch_s_per_step", float("nan")) / r["bound_s_at_conv_peak"]
             lines += ["", f"At least {r['gflop_per_step']:.1f} GFLOP per step (3x the forward "
                           f"FLOPs of {r['batch']} x {r['seq']} frames): "
                           f"{r['bound_s_at_conv_peak']:.3f} s at the measured convolution peak, "
                           f"so no implementation on this machine's convolutions beats that; "
                           f"PyTorch's step is "
-                          f"{r.get('torch_s_per_step', float('nan')) / r['bound_s_at_conv_peak']:.2f}x "
+                          f"{torch_over_bound:.2f}x "
                           f"that bound and jtus's "
                           f"{r['s_per_step'] / r['bound_s_at_conv_peak']:.2f}x."]
     if "train_warps" in report:

@@ -100,7 +100,8 @@ def summarize(per_frame):
 
 
 def markdown(summary_by_factor):
-    lines = ["| factor | method | PSNR (dB) | SSIM | temporal error |", "| --- | --- | --- | --- | --- |"]
+    lines = ["| factor | method | PSNR (dB) | SSIM | temporal error |",
+             "| --- | --- | --- | --- | --- |"]
     for f, summ in summary_by_factor.items():
         for lab, s in summ.items():
             lines.append(f"| {f}x | {lab} | {s['psnr']:.2f} | {s['ssim']:.4f} | "
@@ -146,7 +147,8 @@ def crop_grid(entries, dataset_path, factor, path, split="test", crop=64, rows=3
             tgt = targets[t, 0]
             H, W, _ = tgt.shape
             c = min(crop, H, W) // factor * factor
-            grad = np.abs(np.diff(tgt.mean(-1), axis=0))[:, :-1] + np.abs(np.diff(tgt.mean(-1), axis=1))[:-1]
+            luma = tgt.mean(-1)
+            grad = np.abs(np.diff(luma, axis=0))[:, :-1] + np.abs(np.diff(luma, axis=1))[:-1]
             best, yx = -1.0, (0, 0)
             for y in range(0, H - c + 1, c // 2):
                 for x in range(0, W - c + 1, c // 2):

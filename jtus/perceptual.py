@@ -11,7 +11,9 @@ The file is an ``.npz`` holding the 13 convolution layers of torchvision's
 ``[64,3,3,3]``, ``features.0.bias``, ... ``features.28.bias``), which a machine with
 torchvision writes with::
 
-    python -c "import numpy as np, torchvision; sd = torchvision.models.vgg16(weights='IMAGENET1K_V1').features.state_dict(); np.savez('vgg16.npz', **{'features.' + k: v.numpy() for k, v in sd.items()})"
+    import numpy as np, torchvision
+    sd = torchvision.models.vgg16(weights="IMAGENET1K_V1").features.state_dict()
+    np.savez("vgg16.npz", **{"features." + k: v.numpy() for k, v in sd.items()})
 
 The features are taken after the ReLU that ends each of the five blocks (relu1_2,
 relu2_2, relu3_3, relu4_3, relu5_3), each term normalized by its size ``C*H*W`` as in

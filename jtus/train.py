@@ -169,7 +169,8 @@ def _prepare_workdir(config, workdir, resume, overwrite):
     # a resumed run may be extended (more --epochs); anything else must match
     if (resume and os.path.exists(os.path.join(workdir, checkpoint.CHECKPOINT))
             and os.path.exists(cfg_path)
-            and dataclasses.replace(run_config.from_json(cfg_path), epochs=config.epochs) != config):
+            and dataclasses.replace(run_config.from_json(cfg_path),
+                                    epochs=config.epochs) != config):
         raise ValueError(f"{workdir}: --resume with a different config than "
                          f"{cfg_path} (only --epochs may change); use a new --workdir")
 

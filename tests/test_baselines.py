@@ -68,7 +68,8 @@ def test_rectified_history_lies_in_the_neighbourhood_box(rectify, space):
     out = np.asarray(tus._rectify(config, hist, frame.color, xy))
     neigh = np.asarray(_neighbours(frame.color, xy))
     if space == "ycocg":
-        out, neigh = np.asarray(sampling.rgb_to_ycocg(out)), np.asarray(sampling.rgb_to_ycocg(neigh))
+        out = np.asarray(sampling.rgb_to_ycocg(out))
+        neigh = np.asarray(sampling.rgb_to_ycocg(neigh))
     assert np.all(out >= neigh.min(0) - 1e-5) and np.all(out <= neigh.max(0) + 1e-5)
     inside = np.asarray(tus._rectify(config, jnp.asarray(neigh.mean(0)) if space == "rgb"
                                      else sampling.ycocg_to_rgb(jnp.asarray(neigh.mean(0))),

@@ -165,8 +165,8 @@ def test_registry_builds_every_model():
     frames, _ = _frames(T=2, B=1)
     for name in models.NAMES:
         m = models.build(name, 4)
-        outs, _ = rollout.outputs(m.step, m.init(jax.random.PRNGKey(0)), m.init_state(_first(frames)),
-                                  frames)
+        outs, _ = rollout.outputs(m.step, m.init(jax.random.PRNGKey(0)),
+                                  m.init_state(_first(frames)), frames)
         assert outs.shape == (2, 1, 32, 32, 3) and np.all(np.isfinite(np.asarray(outs))), name
 
 

@@ -176,7 +176,8 @@ def test_exr_and_png_sequences(tmp_path):
     paths = exr.write_sequence(frames, tmp_path / "e", "exr")
     chans, _ = exr.read_exr(paths[1])
     np.testing.assert_array_equal(np.stack([chans[c] for c in "RGB"], -1), frames[1])
-    noncontig = np.ascontiguousarray(frames[0])[:, ::-1]  # OpenEXR writes a non-contiguous array wrong: jtus must make it contiguous
+    # OpenEXR writes a non-contiguous array wrong: jtus must make it contiguous
+    noncontig = np.ascontiguousarray(frames[0])[:, ::-1]
     exr.write_exr(tmp_path / "n.exr", {"R": noncontig[..., 0]})
     np.testing.assert_array_equal(exr.read_exr(tmp_path / "n.exr")[0]["R"], noncontig[..., 0])
     pngs = exr.write_sequence(frames, tmp_path / "p", "png")

@@ -32,8 +32,8 @@ def test_ssim_and_psnr_match_skimage(rng, kind):
                                 use_sample_covariance=False, data_range=1, channel_axis=-1)
     np.testing.assert_allclose(ours, ref, rtol=0, atol=1e-6)
     if kind != "identical":
-        np.testing.assert_allclose(float(metrics.psnr(jnp.asarray(a[None]), jnp.asarray(b[None]))[0]),
-                                   peak_signal_noise_ratio(a, b, data_range=1), rtol=1e-5)
+        got = float(metrics.psnr(jnp.asarray(a[None]), jnp.asarray(b[None]))[0])
+        np.testing.assert_allclose(got, peak_signal_noise_ratio(a, b, data_range=1), rtol=1e-5)
 
 
 def test_ssim_map_matches_skimage_interior(x64, rng):

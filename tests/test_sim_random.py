@@ -110,8 +110,9 @@ def test_random_scene_undeclared_effects_change_no_pixel():
     textures, lights' motion, emission and object velocities say."""
     sc = dataclasses.replace(sim.random_scene(3), effects=())
     ref = _render(sc)
-    objs = tuple(dataclasses.replace(o, velocity=(0.5, 0, 0), spin=0.3, material=dataclasses.replace(
-        o.material, texture="glyphs", emission=3.0, specular=1.0)) for o in sc.objects)
+    objs = tuple(dataclasses.replace(
+        o, velocity=(0.5, 0, 0), spin=0.3, material=dataclasses.replace(
+            o.material, texture="glyphs", emission=3.0, specular=1.0)) for o in sc.objects)
     changed = dataclasses.replace(sc, objects=objs, light=dataclasses.replace(sc.light,
                                                                                orbit_speed=1.0))
     np.testing.assert_array_equal(_render(changed), ref)

@@ -2,9 +2,10 @@
 and any sequence back to EXR or PNG.
 
 Facts of OpenEXR's Python bindings this module respects: arrays must be
-C-contiguous or they are silently written wrong (``mv[..., 0]``, ``rgb[..., ::-1]``), a multi-component array under one key becomes
-three channels, header and pixels must be copied inside the ``with`` block, and
-channels are stored alphabetically (read them by name).
+C-contiguous or they are silently written wrong (``mv[..., 0]``, ``rgb[..., ::-1]``),
+a multi-component array under one key becomes three channels, header and pixels must
+be copied inside the ``with`` block, and channels are stored alphabetically (read them
+by name).
 
 Conventions are converted here, once (``jtus.data.conventions``).
 """

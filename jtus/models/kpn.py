@@ -58,7 +58,8 @@ def init(key, config: Config = Config()):
     ks = jax.random.split(key, 5)
 
     def switched(k, size, ci, co):
-        sets = [layers.torch_uniform_init(kk, (size, size, ci, co)) for kk in jax.random.split(k, n)]
+        sets = [layers.torch_uniform_init(kk, (size, size, ci, co))
+                for kk in jax.random.split(k, n)]
         return jax.tree_util.tree_map(lambda *x: jnp.stack(x), *sets)
 
     return {"conv1": layers.torch_uniform_init(ks[0], (3, 3, IN_CHANNELS, w)),

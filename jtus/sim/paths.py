@@ -132,7 +132,8 @@ class _Timeline:
         if self.scene.has("object_motion"):
             period = 40.0
             for i, o in enumerate(self.scene.objects):
-                pos[i] += np.asarray(o.velocity) * period / (2 * np.pi) * np.sin(2 * np.pi * t / period)
+                phase = np.sin(2 * np.pi * t / period)
+                pos[i] += np.asarray(o.velocity) * period / (2 * np.pi) * phase
                 pos[i, 1] += o.bob * np.sin(2 * np.pi * t / 30.0)
                 yaw[i] += o.spin * t
         return pos, yaw

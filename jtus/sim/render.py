@@ -203,7 +203,8 @@ def make_renderer(scene: Scene, motion: bool = True):
         yaw = state["obj_yaw"][st.index]
         sx = 2 * xy[:, 0:1] - 1
         sy = 1 - 2 * xy[:, 1:2]
-        d = cam["forward"] + sx * cam["tan_half"][0] * cam["right"] + sy * cam["tan_half"][1] * cam["up"]
+        d = (cam["forward"] + sx * cam["tan_half"][0] * cam["right"]
+             + sy * cam["tan_half"][1] * cam["up"])
         o = jnp.broadcast_to(cam["eye"], d.shape)
         t, obj = _intersect(st, o, d, pos, yaw)
         hit = jnp.isfinite(t)
@@ -257,13 +258,15 @@ def make_renderer(scene: Scene, motion: bool = True):
                 lobe = jnp.maximum((n * h).sum(-1), 0.0) ** jnp.asarray(st.shine)[obj]
                 color = color + (gain * jnp.asarray(st.spec)[obj] * lobe)[:, None] * lcol * vis
         if has("emissive_flicker"):
-            color = color + (gain * state["emission"][st.index][obj])[:, None] * jnp.asarray(st.color)[obj]
+            glow = (gain * state["emission"][st.index][obj])[:, None]
+            color = color + glow * jnp.asarray(st.color)[obj]
         sky = horizon + (zenith - horizon) * jnp.clip(dn[:, 1:2], 0.0, 1.0)
         color = jnp.where(hit[:, None], color, sky)
         # LDR scenes clamp to display range; hdr keeps linear radiance (>= 0)
         out = {"color": jnp.maximum(color, 0.0) if hdr else jnp.clip(color, 0.0, 1.0)}
         z = jnp.maximum(t_safe, near)
-        out["depth"] = jnp.where(hit, jnp.clip(far / (far - near) * (1 - near / z), 0, 1), 1.0)[:, None]
+        ndc = jnp.clip(far / (far - near) * (1 - near / z), 0, 1)
+        out["depth"] = jnp.where(hit, ndc, 1.0)[:, None]
         if motion:
             if has("object_motion"):
                 ppos = state["prev_obj_pos"][st.index][obj]

@@ -87,7 +87,8 @@ class VideoRenderer:
 
     def video(self, split, index, length, progress=None, jitter="thesis", jitter_phase=0):
         """A dict: ``target [T,H,W,3]``, ``reset [T]``, and per factor ``x{f}`` a dict
-        of ``color``, ``depth``, ``motion``, ``jitter``; ``exposure [T]`` too with ``hdr``. ``jitter`` names the sequence
+        of ``color``, ``depth``, ``motion``, ``jitter``; ``exposure [T]`` too with ``hdr``.
+        ``jitter`` names the sequence
         (``jtus.sampling.jitter_sequence``); frame t uses element ``t + jitter_phase``."""
         states = paths.timeline(self.scene, split, index, length, self.W / self.H)
         out = {"target": [], "reset": [], "exposure": [],
