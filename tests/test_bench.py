@@ -3,9 +3,12 @@
 import json
 import os
 
+import pytest
+
 from jtus import bench, cost, models
 
 
+@pytest.mark.long
 def test_bench_smoke(capsys, tmp_path):
     out = tmp_path / "new" / "bench.json"  # its folder is created
     assert bench.main(["--sizes", "64", "--factors", "4", "--repeats", "1", "--models",
@@ -46,6 +49,7 @@ def test_cost_table_lists_every_model(capsys):
     assert "78,112" in dl and "20.68" in dl
 
 
+@pytest.mark.long
 def test_profile_attributes_a_training_step_to_its_stages(tmp_path, capsys):
     """``python -m jtus.profile`` finds the step's ops in the trace and names their stage
     and pass: the network runs forward and backward, the reprojection's image gradient
@@ -82,9 +86,8 @@ def test_profile_classifies_ops_by_their_jax_origin():
     assert classify("copy.7", "copy", "") == ("other", "forward", "copy/slice")
 
 
+@pytest.mark.long
 def test_bench_train_preset_sets_the_recipe_workload(capsys):
-    import pytest
-
     from jtus import config, recipe
     assert bench.main(["--what", "train", "--train-preset", "tiny", "--factors", "4",
                        "--repeats", "1", "--no-torch", "--json"]) == 0

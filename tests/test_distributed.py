@@ -10,6 +10,7 @@ import sys
 import textwrap
 
 import numpy as np
+import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -72,6 +73,7 @@ def _run_pair(argv_of, timeout=600):
     return outs
 
 
+@pytest.mark.long
 def test_two_processes_make_the_single_process_update(tmp_path):
     single, pair = tmp_path / "single.npz", tmp_path / "pair.npz"
     subprocess.run([sys.executable, "-c", STEP, "single", str(single)], cwd=ROOT, env=_env(),
@@ -89,6 +91,7 @@ def test_two_processes_make_the_single_process_update(tmp_path):
         np.testing.assert_allclose(a[k], b[k], rtol=0, atol=2e-5 * scale)
 
 
+@pytest.mark.long
 def test_train_cli_distributed_writes_one_run(tmp_path, tiny_data):
     work = tmp_path / "run"
     port = str(_port())

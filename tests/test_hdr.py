@@ -39,20 +39,19 @@ def test_tonemap_round_trip_and_range():
     assert np.isfinite(np.asarray(sampling.inverse_tonemap(jnp.ones((1, 3))))).all()
 
 
-def _models():
-    """Every registered model at 4x with parameters (trained where jtus ships them)."""
-    out = []
-    for name in models.NAMES:
-        m = models.build(name, 4)
-        params = models.load("shipped", 4).params if name == "dlctus" else m.init(
-            jax.random.PRNGKey(0))
-        out.append((name, m, params))
-    return out
+def _model(name):
+    """A registered model at 4x with parameters (trained where jtus ships them). Built
+    in the test, not at collection: every xdist worker collects every module, and
+    building all of them there took 30-70 s per worker."""
+    m = models.build(name, 4)
+    params = models.load("shipped", 4).params if name == "dlctus" else m.init(
+        jax.random.PRNGKey(0))
+    return m, params
 
 
-@pytest.mark.parametrize("name,model,params", _models(), ids=lambda v: v if isinstance(v, str)
-                         else "")
-def test_ldr_frame_with_exposure_one_is_unchanged(name, model, params):
+@pytest.mark.parametrize("name", models.NAMES)
+def test_ldr_frame_with_exposure_one_is_unchanged(name):
+    model, params = _model(name)
     frames, _ = seqdata.sequence(T=4, B=2, h=8, w=8, factor=4, seed=1, max_motion=0.5)
     frames = frames._replace(reset=np.eye(4, 2, dtype=bool))
     base = rollout.outputs(model.step, params, rollout.first_state(model, frames), frames)[0]
