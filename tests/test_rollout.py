@@ -148,8 +148,11 @@ def test_hoisted_preparation_equals_the_plain_step_float64(x64, warp):
                                    targets, loss_frames=3, keep_at=2,
                                    prepare=prepare if hoist else None)
 
-    (l0, (c0, k0)), g0 = jax.value_and_grad(f, has_aux=True)(params, False)
-    (l1, (c1, k1)), g1 = jax.value_and_grad(f, has_aux=True)(params, True)
+    # compiled whole: op-by-op dispatch of this float64 gradient took 169 s against
+    # 122 s compiled (both plain and hoisted, one loaded core)
+    vg = jax.jit(jax.value_and_grad(f, has_aux=True), static_argnums=1)
+    (l0, (c0, k0)), g0 = vg(params, False)
+    (l1, (c1, k1)), g1 = vg(params, True)
     np.testing.assert_allclose(l1, l0, rtol=1e-12)
     leaves = jax.tree_util.tree_leaves
     for a, b in zip(leaves((g1, c1, k1)), leaves((g0, c0, k0))):
@@ -325,9 +328,9 @@ def test_reverse_time_backward_equals_autodiff_float64(x64):
         return rollout.window_loss(model.step, loss_fn, p, carry, frames, targets,
                                    loss_frames=4, keep_at=3, remat=remat)
 
-    (l0, aux0), g0 = jax.value_and_grad(f, has_aux=True)(params, False)
-    (l1, aux1), g1 = jax.jit(jax.value_and_grad(f, has_aux=True), static_argnums=1)(
-        params, "reverse")
+    vg = jax.jit(jax.value_and_grad(f, has_aux=True), static_argnums=1)
+    (l0, aux0), g0 = vg(params, False)
+    (l1, aux1), g1 = vg(params, "reverse")
     np.testing.assert_allclose(l1, l0, rtol=1e-12)
     leaves = jax.tree_util.tree_leaves
     assert len(leaves(g1)) == len(leaves(g0))
