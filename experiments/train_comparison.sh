@@ -14,9 +14,9 @@
 #   ONLY="mlp kpn" FACTORS=4 bash experiments/train_comparison.sh
 #
 # A run spans sessions through committed checkpoints: `SAVE_ONLY=1 bash
-# experiments/train_comparison.sh` copies every run's latest checkpoint, config and log
-# to experiments/checkpoints/<model>-diverse-x<f>/ (about 1 MB each, to commit), and a
-# run whose workdir has no checkpoint starts from that copy with --resume.
+# experiments/train_comparison.sh` copies every unfinished run's latest checkpoint,
+# config and log to experiments/checkpoints/<model>-diverse-x<f>/ (about 1 MB each, to
+# commit), and a run whose workdir has no checkpoint starts from that copy with --resume.
 #
 # Runs land in runs/<model>-diverse-x<f>/; when a run has finished its schedule its
 # parameters are exported to experiments/weights/<model>-x<f>.msgpack (with the config
@@ -42,15 +42,15 @@ for m in ${ONLY:-mlp kpn nsrr-fast nsrr}; do
   for f in ${FACTORS:-4 2}; do
     wd=runs/$m-diverse-x$f
     saved=experiments/checkpoints/$m-diverse-x$f
-    if [ -n "${SAVE_ONLY:-}" ]; then
-      python experiments/saved_runs.py "$wd" "$saved" || true
-      continue
-    fi
     # a run whose exported log (experiments/weights/) has finished the schedule is done,
-    # on any machine: nothing to resume or retrain
+    # on any machine: nothing to resume, retrain or save
     planned=$(sed -n 's/.*--epochs \([0-9]*\).*/\1/p' <<< "${args[$m]} ${override[$m-$f]:-}")
     if python experiments/training_summary.py --finished "$m" "$f" "$planned"; then
       echo "$m ${f}x: finished (experiments/weights/$m-x$f.*); skipped"
+      continue
+    fi
+    if [ -n "${SAVE_ONLY:-}" ]; then
+      python experiments/saved_runs.py "$wd" "$saved" || true
       continue
     fi
     if [ ! -f "$wd/checkpoint.msgpack" ] && python experiments/saved_runs.py "$saved" "$wd"; then
