@@ -28,6 +28,7 @@ convolutions has a slow backward, see ``docs/performance.md``).
 
 from __future__ import annotations
 
+import functools
 from typing import Any, NamedTuple
 
 import jax
@@ -101,11 +102,15 @@ def outputs(step, params, state, frames, *, remat=False, unroll=1, check=True):
 def video(model, params, frames, *, check=True):
     """A model's outputs ``[T,B,H,W,3]`` over a whole video of time-major ``frames``,
     from its first state (``first_state``), compiled: what evaluation, figures and the
-    ``upsample`` CLI run."""
+    ``upsample`` CLI run. Compiled once per model and input shape (the model is a
+    static argument), so many videos of one size through one model share a program."""
     _check(frames, check)
-    run = jax.jit(lambda p, f: outputs(model.step, p, first_state(model, f), f,
-                                       check=False)[0])
-    return run(params, frames)
+    return _video(model, params, frames)
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _video(model, params, frames):
+    return outputs(model.step, params, first_state(model, frames), frames, check=False)[0]
 
 
 def metrics(step, params, state, frames, targets, metric_fn, *, unroll=1, check=True):
