@@ -17,10 +17,16 @@ Two facts about JAX shape the mutmut configuration (docs/testing.md):
   the fork server imports nothing (``process_isolation = "forkserver"``,
   ``forkserver_warmup = "none"``) and each child imports JAX itself.
 - mutmut switches mutants inside a function by a trampoline that reads an environment
-  variable at call time; a ``jax.jit`` cache filled before the switch would keep
-  running the original. The runs set ``JAX_DISABLE_JIT=1`` (op-by-op execution of the
-  same mathematics; the tests' inputs are small), so no compiled program outlives a
-  mutant.
+  variable at call time. Under ``jax.jit`` the trampoline runs only when a function is
+  traced, so in one process a program compiled before the switch would keep running
+  the original. Each mutant runs in its own fresh child, where nothing is traced
+  before its mutant is set, so the mutants run compiled; they share one persistent
+  compilation cache (``<workdir>/jax-cache``), whose keys are the compiled programs
+  themselves: a program the mutant does not change is read back instead of compiled
+  again, one it changes has a new key. mutmut's call-recording run ("stats", which
+  decides which tests each mutant runs) is op by op (``jax_disable_jit``, set by a hook
+  appended to the scratch copy's ``tests/conftest.py``), because a jitted function
+  traced once by an earlier test would not record its calls for the later ones.
 
 Mutants shown to be equivalent are listed, with why, in ``EQUIVALENT`` below and are
 left out of the rate.
@@ -100,6 +106,15 @@ def config_block(module, tests):
 
 SAVED = os.path.join(ROOT, "experiments", "checkpoints", "mutation")
 
+# appended to the scratch copy's tests/conftest.py: mutmut runs its clean, forced-fail
+# and call-recording ("stats") test runs in one process, one after another, so the mode
+# is set at each session's start, not at import
+STATS_OP_BY_OP = """
+
+def pytest_sessionstart(session):  # added by experiments/mutation.py
+    jax.config.update("jax_disable_jit", os.environ.get("MUTANT_UNDER_TEST") == "stats")
+"""
+
 
 def meta_paths(module, workdir):
     """``(mutmut's result file for module in the scratch copy, its committed copy)``.
@@ -120,17 +135,21 @@ def save_meta(module, workdir):
         print(f"saved {os.path.relpath(live, ROOT)} -> {os.path.relpath(saved, ROOT)}")
 
 
-def run_module(module, workdir, max_children, recheck=False):
+def run_module(module, workdir, max_children, recheck=False, fresh=False):
     dest = os.path.join(workdir, module.replace("/", "_").removesuffix(".py"))
     scratch_copy(dest)  # the current sources and tests (mutmut re-mutates what changed)
     live, saved = meta_paths(module, workdir)
-    if not os.path.exists(live) and os.path.exists(saved):
+    if not fresh and not os.path.exists(live) and os.path.exists(saved):
         os.makedirs(os.path.dirname(live), exist_ok=True)
         shutil.copyfile(saved, live)
         print(f"resuming {module} from {os.path.relpath(saved, ROOT)}")
     with open(os.path.join(dest, "pyproject.toml"), "a") as fh:
         fh.write(config_block(module, TESTS[module]))
-    env = dict(os.environ, JAX_DISABLE_JIT="1")
+    with open(os.path.join(dest, "tests", "conftest.py"), "a") as fh:
+        fh.write(STATS_OP_BY_OP)
+    env = dict(os.environ, JTUS_TEST_JAX_CACHE=os.path.join(workdir, "jax-cache"))
+    env.pop("JAX_DISABLE_JIT", None)
+    os.makedirs(env["JTUS_TEST_JAX_CACHE"], exist_ok=True)
 
     def status():
         res = subprocess.run(["mutmut", "results", "--all", "true"], cwd=dest, env=env,
@@ -168,6 +187,9 @@ def main(argv=None):
     p.add_argument("--recheck", action="store_true",
                    help="run only the surviving (and untested) mutants of earlier runs again, "
                         "against the tests as they are now (no new mutants)")
+    p.add_argument("--fresh", action="store_true",
+                   help="do not start from the committed results (a new workdir then runs "
+                        "every mutant)")
     p.add_argument("--save-only", action="store_true",
                    help="copy each module's mutmut results (mutants/<module>.meta) to "
                         "experiments/checkpoints/mutation/ to commit, and exit")
@@ -180,7 +202,8 @@ def main(argv=None):
         sys.exit("error: mutmut is not installed (pip install mutmut)")
     rows = []
     for m in args.modules:
-        status, seconds = run_module(m, args.workdir, args.max_children, args.recheck)
+        status, seconds = run_module(m, args.workdir, args.max_children, args.recheck,
+                                     args.fresh)
         counts, tested, killed = summarize(status)
         survivors = sorted(k for k, v in status.items()
                            if v == "survived" and k not in EQUIVALENT)

@@ -88,7 +88,8 @@ def test_loss_names_and_theta_checked():
         losses.make("st-linear", 2, theta=1.5)
 
 
-def _kpn_loss_numpy(out, target, prev_out, prev_target, color, jitter, f, has_prev):
+def _kpn_loss_numpy(out, target, prev_out, prev_target, color, jitter, f, has_prev,
+                    weights=(1.0, 1.0, 4.0), boost=1.5, sensitivity=4.0):
     """Herveau et al.'s loss (sec. 5.3) written out in numpy (float64), with zero
     motion (the previous error then needs no warp): the alias mask is the summed
     absolute channel difference between the jitter-aligned input and the reference,
@@ -100,11 +101,11 @@ def _kpn_loss_numpy(out, target, prev_out, prev_target, color, jitter, f, has_pr
     from tests.seqdata import jau_reference
 
     jau = jau_reference(color, jitter, f)
-    m = np.clip(4.0 * np.abs(jau - target).sum(-1), 0.0, 1.0)
+    m = np.clip(sensitivity * np.abs(jau - target).sum(-1), 0.0, 1.0)
     H, W = m.shape[1:]
     pad = np.pad(m, ((0, 0), (1, 1), (1, 1)), mode="edge")
     m = np.max([pad[:, dy:dy + H, dx:dx + W] for dy in range(3) for dx in range(3)], 0)
-    wgt = (1.5 * m + (1 - m))[..., None]
+    wgt = (boost * m + (1 - m))[..., None]
     ref = np.mean(wgt * np.abs(out - target) * np.ones(3))
     d = out - target
     gy = d[:, 1:, :-1] - d[:, :-1, :-1]
@@ -112,7 +113,7 @@ def _kpn_loss_numpy(out, target, prev_out, prev_target, color, jitter, f, has_pr
     grad = np.mean(wgt[:, :-1, :-1] * (np.abs(gy) + np.abs(gx)))
     prev = (prev_out - prev_target) if has_prev else 0.0
     temporal = np.mean(wgt * np.abs(d - prev))
-    return ref + grad + 4.0 * temporal
+    return weights[0] * ref + weights[1] * grad + weights[2] * temporal
 
 
 @pytest.mark.parametrize("has_prev", [True, False])
@@ -141,6 +142,14 @@ def test_kpn_loss_against_its_formula(rng, has_prev):
                              jnp.asarray(has_prev), frame)
     want = _kpn_loss_numpy(out, target, prev_out, prev_target, color, jitter, f, has_prev)
     np.testing.assert_allclose(float(got), want, rtol=2e-6)  # float32 means of O(1) terms
+    # every setting reaches the loss (a mutant dropping the sensitivity passed on to
+    # alias_mask survived the defaults, which equal alias_mask's own)
+    kw = dict(weights=(0.5, 2.0, 3.0), boost=2.5, sensitivity=2.0)
+    got = losses.kpn_loss(f, kw["weights"], kw["boost"], kw["sensitivity"])(
+        *(jnp.asarray(x, jnp.float32) for x in (out, target, prev_out, prev_target)),
+        jnp.asarray(has_prev), frame)
+    want = _kpn_loss_numpy(out, target, prev_out, prev_target, color, jitter, f, has_prev, **kw)
+    np.testing.assert_allclose(float(got), want, rtol=2e-6)
 
 
 def test_mse_and_ssim_losses_against_numpy_and_skimage():
