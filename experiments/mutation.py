@@ -135,7 +135,7 @@ def save_meta(module, workdir):
         print(f"saved {os.path.relpath(live, ROOT)} -> {os.path.relpath(saved, ROOT)}")
 
 
-def run_module(module, workdir, max_children, recheck=False, fresh=False):
+def run_module(module, workdir, max_children, recheck=False, fresh=False, op_by_op=False):
     dest = os.path.join(workdir, module.replace("/", "_").removesuffix(".py"))
     scratch_copy(dest)  # the current sources and tests (mutmut re-mutates what changed)
     live, saved = meta_paths(module, workdir)
@@ -149,6 +149,8 @@ def run_module(module, workdir, max_children, recheck=False, fresh=False):
         fh.write(STATS_OP_BY_OP)
     env = dict(os.environ, JTUS_TEST_JAX_CACHE=os.path.join(workdir, "jax-cache"))
     env.pop("JAX_DISABLE_JIT", None)
+    if op_by_op:
+        env["JAX_DISABLE_JIT"] = "1"
     os.makedirs(env["JTUS_TEST_JAX_CACHE"], exist_ok=True)
 
     def status():
@@ -187,6 +189,10 @@ def main(argv=None):
     p.add_argument("--recheck", action="store_true",
                    help="run only the surviving (and untested) mutants of earlier runs again, "
                         "against the tests as they are now (no new mutants)")
+    p.add_argument("--op-by-op", action="store_true",
+                   help="run the mutants with JAX_DISABLE_JIT=1 (faster where the tests are "
+                        "small and every mutant changes the compiled programs: "
+                        "jtus/metrics.py)")
     p.add_argument("--fresh", action="store_true",
                    help="do not start from the committed results (a new workdir then runs "
                         "every mutant)")
@@ -203,7 +209,7 @@ def main(argv=None):
     rows = []
     for m in args.modules:
         status, seconds = run_module(m, args.workdir, args.max_children, args.recheck,
-                                     args.fresh)
+                                     args.fresh, args.op_by_op)
         counts, tested, killed = summarize(status)
         survivors = sorted(k for k, v in status.items()
                            if v == "survived" and k not in EQUIVALENT)

@@ -371,3 +371,35 @@ def test_training_summary_takes_the_longer_log(tmp_path):
     assert not ts.finished("kpn", 2, 41, str(tmp_path))
     assert not ts.finished("mlp", 4, 3, str(tmp_path))
     assert not ts.finished("nsrr", 4, 3, str(tmp_path))
+
+
+def test_mutation_script_counts_mutants_and_sets_the_jit_mode(tmp_path, monkeypatch):
+    """experiments/mutation.py: an equivalent mutant and an unchecked one are not in the
+    rate, a timeout is not a kill; the hook it appends to the scratch conftest runs only
+    mutmut's call-recording run op by op; results of separate runs merge."""
+    mu = _load_experiment("mutation")
+    equivalent = next(iter(mu.EQUIVALENT))
+    status = {"m.x_a__mutmut_1": "killed", "m.x_a__mutmut_2": "survived",
+              "m.x_a__mutmut_3": "timeout", "m.x_a__mutmut_4": "not checked",
+              equivalent: "survived"}
+    counts, tested, killed = mu.summarize(status)
+    assert (tested, killed) == (3, 1) and equivalent not in counts
+    conftest = open(os.path.join(os.path.dirname(__file__), "conftest.py")).read()
+    assert "\nimport jax\n" in conftest and "\nimport os\n" in conftest  # the hook's names
+    ns = {"jax": jax, "os": os}
+    exec(mu.STATS_OP_BY_OP, ns)
+    try:
+        monkeypatch.setenv("MUTANT_UNDER_TEST", "stats")
+        ns["pytest_sessionstart"](None)
+        assert jax.config.jax_disable_jit
+        monkeypatch.setenv("MUTANT_UNDER_TEST", "jtus.losses.x_make__mutmut_1")
+        ns["pytest_sessionstart"](None)
+        assert not jax.config.jax_disable_jit
+    finally:
+        jax.config.update("jax_disable_jit", False)
+    out = str(tmp_path / "results.md")
+    mu.write_results(out, [("jtus/metrics.py", 10, 9, 9, "100%", 5.0, [])], "cmd-a")
+    mu.write_results(out, [("jtus/losses.py", 20, 18, 17, "94%", 7.0, ["m.x_b"])], "cmd-b")
+    text = open(out).read()
+    assert "| `jtus/metrics.py` | 10 | 9 | 9 | 100% |" in text and "`cmd-a`" in text
+    assert "| `jtus/losses.py` | 20 | 18 | 17 | 94% |" in text and "`m.x_b`" in text
