@@ -3,6 +3,11 @@ families, per factor, with what each was trained for.
 
     python experiments/comparison_table.py                 # both factors, all families
     python experiments/comparison_table.py --factors 4 --families random
+    python experiments/comparison_table.py --only nsrr-fast   # one system again
+
+``--only`` evaluates the named systems and carries every other row over from the
+existing ``result.json`` (for a system whose weights have not changed since); the
+result then names, per factor, the command that scored each row.
 
 Families (each video from a fresh state; none trained or tuned on):
 - ``random``: the randomized scenes' unseen test seeds of ``data/diverse.h5``;
@@ -29,11 +34,13 @@ import csv
 import json
 import os
 
-from common import ROOT, write  # noqa: I001  (experiments/ on sys.path)
+from common import ROOT, command_line, write  # noqa: I001  (experiments/ on sys.path)
 from external.evaluate_external import evaluate_clips
 from training_summary import SYSTEMS, find, summarize
 
 from jtus import evaluate, models
+
+RESULTS = os.path.join(ROOT, "docs", "results")  # where --only reads the earlier result
 
 FAMILIES = {
     "random": ("randomized scenes, unseen seeds", "data/diverse.h5", "random_*"),
@@ -124,17 +131,41 @@ def main(argv=None):
     p.add_argument("--data-root", default=ROOT,
                    help="folder holding data/diverse.h5 and data/external/")
     p.add_argument("--name", default="comparison-table")
+    p.add_argument("--only", nargs="+", metavar="SYSTEM",
+                   help="evaluate only these systems; the other rows come from the existing "
+                        "result.json")
     args = p.parse_args(argv)
+    old = {}
+    if args.only:
+        path = os.path.join(RESULTS, args.name, "result.json")
+        if not os.path.exists(path):
+            p.error(f"--only: {path} is missing; run without --only first")
+        with open(path) as fh:
+            old = json.load(fh)
+        if sorted(map(str, args.factors)) != sorted(k for k in old if k.isdigit()) or any(
+                fam not in old[str(f)] for f in args.factors for fam in args.families):
+            p.error(f"--only: {path} holds other factors or families than asked for")
     for fam in args.families:  # every input checked before the first evaluation
         path = os.path.join(args.data_root, FAMILIES[fam][1])
         if not os.path.exists(path):
             p.error(f"--families {fam}: {path} is missing (see this script's docstring)")
-    results, lines = {}, []
+    results, lines, command = {}, [], command_line()
     for f in args.factors:
         rows = systems(f)
-        entries = models.load_all([spec for _, spec, _, _ in rows if spec], f)
+        if args.only:
+            unknown = set(args.only) - {lab for lab, spec, _, _ in rows if spec}
+            if unknown:
+                p.error(f"--only: no weights to evaluate for {sorted(unknown)} at {f}x")
+        todo = [spec for lab, spec, _, _ in rows if spec and (not args.only or lab in args.only)]
+        entries = models.load_all(todo, f)
         res = results[str(f)] = {fam: score(entries, fam, f, args.data_root)
                                  for fam in args.families}
+        made = res["made_by"] = {e.label: command for e in entries}
+        for lab, spec, _, _ in rows:
+            if spec and lab not in made:  # carried over (--only)
+                for fam in args.families:
+                    res[fam][lab] = old[str(f)][fam][lab]
+                made[lab] = old[str(f)].get("made_by", {}).get(lab, old.get("command", "?"))
         lines += [f"**{f}x** (each cell: PSNR dB / SSIM / temporal error)", "",
                   "| system | weights | " + " | ".join(FAMILIES[fam][0] for fam in args.families)
                   + " | Adam steps | crop | frames | training wall time |",
@@ -156,9 +187,15 @@ def main(argv=None):
               "| --- | --- | --- |"]
     lines += [f"| {what} | {m:+.2f} | {'yes' if ok else '**no**'} |" for what, m, ok in tg]
     results["targets"] = [{"target": w, "margin_db": m, "met": bool(ok)} for w, m, ok in tg]
-    write(args.name, "\n".join(lines), results,
-          note="Training wall time: the sum of the per-epoch times of the run's log, on one "
-               "core of a 2-core machine often shared with other work (docs/comparison.md).")
+    results["command"] = command
+    note = ("Training wall time: the sum of the per-epoch times of the run's log, on one "
+            "core of a 2-core machine often shared with other work (docs/comparison.md).")
+    carried = {(f, lab): c for f in args.factors
+               for lab, c in results[str(f)]["made_by"].items() if c != command}
+    if carried:
+        note += "\n\nRows carried over from earlier runs (`--only`): " + "; ".join(
+            f"{f}x {lab}: `{c}`" for (f, lab), c in sorted(carried.items())) + "."
+    write(args.name, "\n".join(lines), results, note=note)
 
 
 if __name__ == "__main__":

@@ -115,13 +115,13 @@ def displayed(fn):
     sees: HDR frames (with an exposure) compare ``sampling.display`` of each image,
     tone-mapped pre-exposed colour in [0, 1), so highlights do not dominate; LDR frames
     (no exposure) compare the images themselves. Every loss and metric goes through it."""
-    def on_display(out, target, prev_out, prev_target, has_prev, frame, *rest):
+    def on_display(out, target, prev_out, prev_target, has_prev, frame):
         e = None if frame is None else frame.exposure  # spatial losses need no frame
         if e is None:
-            return fn(out, target, prev_out, prev_target, has_prev, frame, *rest)
+            return fn(out, target, prev_out, prev_target, has_prev, frame)
         d = lambda x: sampling.display(x, e)  # noqa: E731
         return fn(d(out), d(target), d(prev_out), d(prev_target), has_prev,
-                  frame._replace(color=d(frame.color)), *rest)
+                  frame._replace(color=d(frame.color)))
     return on_display
 
 

@@ -48,6 +48,18 @@ def test_parameter_counts():
     assert fast < 0.4 * 547767
 
 
+@pytest.mark.parametrize("shape", [(1,), (7,), (64,), (3, 3, 12, 50), (50, 16)])
+def test_init_draws_are_jax_uniform_draws(shape):
+    """layers.uniform (the models' inits) draws from a power-of-two length and keeps the
+    first values: exactly jax.random.uniform of the shape, and the bound is reached."""
+    from jtus.models import layers
+
+    key = jax.random.PRNGKey(3)
+    got = layers.uniform(key, shape, 0.25)
+    np.testing.assert_array_equal(got, jax.random.uniform(key, shape, jnp.float32, -0.25, 0.25))
+    assert got.shape == shape and float(jnp.abs(got).max()) <= 0.25
+
+
 def test_nsrr_reweighting_lies_in_0_10():
     frames, _ = _frames()
     config = nsrr.Config()

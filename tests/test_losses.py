@@ -1,5 +1,6 @@
 """Losses of thesis sec. 4.3.3, on hand-made cases."""
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -72,6 +73,23 @@ def test_previous_error_is_warped_with_motion(rng):
     np.testing.assert_allclose(np.asarray(y)[:, :, :-f], prev_err[:, :, f:], atol=1e-6)
     # The last column reads at x = W - 0.5 + 2 > W: outside, no previous error.
     np.testing.assert_array_equal(np.asarray(y)[:, :, -1], 0.0)
+
+
+def test_previous_error_positions_in_the_errors_precision(rng):
+    """The positions are computed in the errors' dtype: float32 errors and motion read
+    the same with 64-bit types enabled as without (positions from float64 arithmetic
+    differ by ~1e-6 pixels, which shows in the read values)."""
+    f, h, w = 4, 6, 12
+    mv = rng.uniform(-3, 3, size=(1, h, w, 2)).astype(np.float32)
+    prev = rng.uniform(size=(1, h * f, w * f, 3)).astype(np.float32)
+    reads = []
+    for wide in (False, True):
+        with jax.enable_x64(wide):
+            reads.append(losses.warp_previous(jnp.asarray(prev), jnp.asarray(mv), f,
+                                              "bilinear"))
+    assert reads[1][0].dtype == jnp.float32
+    np.testing.assert_array_equal(reads[1][0], reads[0][0])
+    np.testing.assert_array_equal(reads[1][1], reads[0][1])
 
 
 def test_no_previous_frame_reduces_to_l1(rng):

@@ -403,3 +403,43 @@ def test_mutation_script_counts_mutants_and_sets_the_jit_mode(tmp_path, monkeypa
     text = open(out).read()
     assert "| `jtus/metrics.py` | 10 | 9 | 9 | 100% |" in text and "`cmd-a`" in text
     assert "| `jtus/losses.py` | 20 | 18 | 17 | 94% |" in text and "`m.x_b`" in text
+
+
+def test_comparison_table_only_rescores_the_named_systems(tmp_path, monkeypatch):
+    """comparison_table.py --only: the named system is scored again, every other row is
+    carried over from the earlier result with the command that scored it; a system
+    without weights, or an earlier result of other factors, is refused."""
+    import sys
+
+    ct = _load_experiment("comparison_table")
+    written = []
+    monkeypatch.setattr(ct, "write", lambda name, table, data, note="": written.append(
+        (table, data, note)))
+    monkeypatch.setattr(ct, "RESULTS", str(tmp_path))
+
+    def scorer(value):
+        return lambda entries, fam, f, root: {e.label: {"psnr": value, "ssim": 0.5,
+                                                        "temporal": 0.1} for e in entries}
+
+    monkeypatch.setattr(ct, "score", scorer(20.0))
+    monkeypatch.setattr(sys, "argv", ["experiments/comparison_table.py", "--first"])
+    ct.main(["--factors", "4", "--families", "random"])
+    first = written[-1][1]
+    labels = [lab for lab, spec, _, _ in ct.systems(4) if spec]
+    assert sorted(first["4"]["random"]) == sorted(labels)
+    (tmp_path / "comparison-table").mkdir()
+    (tmp_path / "comparison-table" / "result.json").write_text(json.dumps(first))
+    monkeypatch.setattr(ct, "score", scorer(30.0))
+    monkeypatch.setattr(sys, "argv", ["experiments/comparison_table.py", "--second"])
+    ct.main(["--factors", "4", "--families", "random", "--only", "dlctus"])
+    table, data, note = written[-1]
+    got = {lab: v["psnr"] for lab, v in data["4"]["random"].items()}
+    assert got == {lab: 30.0 if lab == "dlctus" else 20.0 for lab in labels}
+    assert data["4"]["made_by"]["dlctus"].endswith("--second")
+    assert data["4"]["made_by"]["jau"].endswith("--first")
+    assert "4x jau: `python experiments/comparison_table.py --first`" in note
+    assert "| dlctus | shipped | 30.00 / 0.5000 / 0.10000 |" in table
+    with pytest.raises(SystemExit):  # no weights to evaluate
+        ct.main(["--factors", "4", "--families", "random", "--only", "nsrr"])
+    with pytest.raises(SystemExit):  # the earlier result has no 2x
+        ct.main(["--factors", "4", "2", "--families", "random", "--only", "dlctus"])
