@@ -142,6 +142,10 @@ def main(argv=None):
             p.error(f"--only: {path} is missing; run without --only first")
         with open(path) as fh:
             old = json.load(fh)
+        if "command" not in old:  # written before --only: its command is in result.md
+            with open(os.path.join(RESULTS, args.name, "result.md")) as fh:
+                old["command"] = next((ln.split("`")[1] for ln in fh
+                                       if ln.startswith("Command: `")), "?")
         if sorted(map(str, args.factors)) != sorted(k for k in old if k.isdigit()) or any(
                 fam not in old[str(f)] for f in args.factors for fam in args.families):
             p.error(f"--only: {path} holds other factors or families than asked for")
