@@ -15,8 +15,9 @@ Every run is the ``diverse`` preset (randomized scenes, every jitter sequence, c
 ``--epochs`` x ``--steps-per-epoch`` steps (the schedule scales to it), in
 ``runs/ablation-<study>/<variant>-s<seed>/`` (resumed when it exists). A run whose
 network collapsed (``jtus.train.collapsed``: a gradient norm that stays at zero, or a
-validation loss that stops changing) is reported, not averaged, and a run with the
-next unused seed takes its place, up to ``--max-extra`` extra seeds per variant.
+validation loss that stops changing) stops training at that epoch, is reported, not
+averaged, and a run with the next unused seed takes its place, up to ``--max-extra``
+extra seeds per variant.
 Scores: PSNR, SSIM and the spatial / temporal errors over the first ``--max-videos``
 videos of the test split (never trained or tuned on), mean and standard deviation
 over the seeds that trained. Writes ``docs/results/ablation-<study>/result.{md,json}``.
@@ -91,7 +92,8 @@ def run_variant(study, label, changes, base, seeds, max_extra, max_videos, progr
                 copy_run(saved_dir(work), work):
             print(f"resuming {os.path.relpath(work, ROOT)} from its saved checkpoint",
                   file=sys.stderr)
-        params, hist = train.train_and_evaluate(cfg, work, resume=True, progress=progress)
+        params, hist = train.train_and_evaluate(cfg, work, resume=True, progress=progress,
+                                                stop_when=train.collapsed)
         rec = {"variant": label, "seed": seed, "workdir": os.path.relpath(work, ROOT),
                "val_psnr_last": hist[-1].get("val_psnr") if hist else None}
         why = train.collapsed(hist)

@@ -176,13 +176,16 @@ def _prepare_workdir(config, workdir, resume, overwrite):
 
 
 def train_and_evaluate(config: Config, workdir, resume=False, progress=True, stop_after=None,
-                       overwrite=False):
+                       overwrite=False, stop_when=None):
     """Train ``config`` into ``workdir``; returns ``(params, history)``.
 
     A workdir that holds a run is continued with ``resume`` or replaced with
     ``overwrite``, never silently mixed; everything is checked before the first write.
     A non-finite loss or gradient stops the run and leaves the last good checkpoint.
     ``stop_after``: stop (as if killed) after that many epochs of this call, for tests.
+    ``stop_when(history) -> reason or None``: checked on a resumed history and after each
+    epoch's checkpoint; the run stops there when it gives a reason (the ablations pass
+    ``collapsed``: a collapsed network's further epochs are wasted).
 
     In a multi-process run (``sharding.initialize`` first) every process trains on its
     own ``batch / processes`` crops of each step (its own random stream) and process 0
@@ -233,7 +236,10 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
         val_names = ds.videos("val")[:config.val_videos]
         done = 0
         local_batch = config.batch // procs
-        for epoch in range(start_epoch + 1, config.epochs + 1):
+        end = config.epochs
+        if stop_when is not None and history and stop_when(history):
+            end = start_epoch  # stopped in an earlier call: nothing more to train
+        for epoch in range(start_epoch + 1, end + 1):
             # one stream per epoch (and per process): resume draws the same crops
             rng = np.random.default_rng([config.seed, epoch] + (
                 [jax.process_index()] if procs > 1 else []))
@@ -288,6 +294,8 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
                       f"|g| {rec['grad_norm']:.3g}  ({rec['seconds']:.0f} s)", file=sys.stderr)
             done += 1
             if stop_after is not None and done >= stop_after:
+                break
+            if stop_when is not None and stop_when(history):
                 break
     return ts.params, history
 

@@ -43,6 +43,14 @@ def test_killed_run_resumes_to_the_same_parameters(tiny_data, tmp_path):
     assert cfg == config
     for a, b in zip(_leaves(full), _leaves(params)):
         np.testing.assert_array_equal(a, b)
+    # stop_when (the ablations stop a collapsed run): checked after each epoch, and on
+    # a resumed history, which then trains nothing more
+    longer = dataclasses.replace(config, epochs=6)
+    at4 = lambda h: "epoch 4" if h[-1]["epoch"] >= 4 else None  # noqa: E731
+    for _ in range(2):
+        _, hist = train.train_and_evaluate(longer, tmp_path / "cut", resume=True,
+                                           progress=False, stop_when=at4)
+        assert [h["epoch"] for h in hist] == [1, 2, 3, 4]
     # a finished run extended with more epochs lands where the longer run lands
     short = dataclasses.replace(config, epochs=2)
     train.train_and_evaluate(short, tmp_path / "ext", progress=False)
