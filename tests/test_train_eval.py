@@ -431,7 +431,11 @@ def test_comparison_table_only_rescores_the_named_systems(tmp_path, monkeypatch)
 
     monkeypatch.setattr(ct, "score", scorer(20.0))
     monkeypatch.setattr(sys, "argv", ["experiments/comparison_table.py", "--first"])
-    ct.main(["--factors", "4", "--families", "random"])
+    root = tmp_path / "root"  # the data is only checked to exist: score is replaced
+    (root / "data").mkdir(parents=True)
+    (root / "data" / "diverse.h5").write_bytes(b"")
+    fam = ["--families", "random", "--data-root", str(root)]
+    ct.main(["--factors", "4", *fam])
     first = written[-1][1]
     labels = [lab for lab, spec, _, _ in ct.systems(4) if spec]
     assert sorted(first["4"]["random"]) == sorted(labels)
@@ -439,7 +443,7 @@ def test_comparison_table_only_rescores_the_named_systems(tmp_path, monkeypatch)
     (tmp_path / "comparison-table" / "result.json").write_text(json.dumps(first))
     monkeypatch.setattr(ct, "score", scorer(30.0))
     monkeypatch.setattr(sys, "argv", ["experiments/comparison_table.py", "--second"])
-    ct.main(["--factors", "4", "--families", "random", "--only", "dlctus"])
+    ct.main(["--factors", "4", *fam, "--only", "dlctus"])
     table, data, note = written[-1]
     got = {lab: v["psnr"] for lab, v in data["4"]["random"].items()}
     assert got == {lab: 30.0 if lab == "dlctus" else 20.0 for lab in labels}
@@ -448,6 +452,6 @@ def test_comparison_table_only_rescores_the_named_systems(tmp_path, monkeypatch)
     assert "4x jau: `python experiments/comparison_table.py --first`" in note
     assert "| dlctus | shipped | 30.00 / 0.5000 / 0.10000 |" in table
     with pytest.raises(SystemExit):  # no weights to evaluate
-        ct.main(["--factors", "4", "--families", "random", "--only", "nsrr"])
+        ct.main(["--factors", "4", *fam, "--only", "nsrr"])
     with pytest.raises(SystemExit):  # the earlier result has no 2x
-        ct.main(["--factors", "4", "2", "--families", "random", "--only", "dlctus"])
+        ct.main(["--factors", "4", "2", *fam, "--only", "dlctus"])
