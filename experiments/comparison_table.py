@@ -142,10 +142,6 @@ def main(argv=None):
             p.error(f"--only: {path} is missing; run without --only first")
         with open(path) as fh:
             old = json.load(fh)
-        if "command" not in old:  # written before --only: its command is in result.md
-            with open(os.path.join(RESULTS, args.name, "result.md")) as fh:
-                old["command"] = next((ln.split("`")[1] for ln in fh
-                                       if ln.startswith("Command: `")), "?")
         if sorted(map(str, args.factors)) != sorted(k for k in old if k.isdigit()) or any(
                 fam not in old[str(f)] for f in args.factors for fam in args.families):
             p.error(f"--only: {path} holds other factors or families than asked for")
@@ -169,7 +165,7 @@ def main(argv=None):
             if spec and lab not in made:  # carried over (--only)
                 for fam in args.families:
                     res[fam][lab] = old[str(f)][fam][lab]
-                made[lab] = old[str(f)].get("made_by", {}).get(lab, old.get("command", "?"))
+                made[lab] = old[str(f)]["made_by"][lab]
         lines += [f"**{f}x** (each cell: PSNR dB / SSIM / temporal error)", "",
                   "| system | weights | " + " | ".join(FAMILIES[fam][0] for fam in args.families)
                   + " | Adam steps | crop | frames | training wall time |",

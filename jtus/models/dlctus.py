@@ -313,7 +313,7 @@ def params_from_torch(state_dict, config: Config = Config()):
         missing, extra = sorted(expected - got), sorted(got - expected)
         raise ValueError(f"state_dict: keys do not match DLCTUS; missing {missing}, "
                          f"unexpected {extra}")
-    ref = init(jax.random.PRNGKey(0), config)
+    ref = jax.eval_shape(lambda: init(jax.random.PRNGKey(0), config))  # shapes only
     params = jax.tree_util.tree_map(lambda x: None, ref)
     for key, path in names:
         v = _to_numpy(state_dict[key]).astype(np.float32)
