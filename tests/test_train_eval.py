@@ -405,6 +405,14 @@ def test_mutation_script_counts_mutants_and_sets_the_jit_mode(tmp_path, monkeypa
         assert not jax.config.jax_disable_jit
     finally:
         jax.config.update("jax_disable_jit", False)
+    import tomllib
+    for module, k in (("jtus/models/kpn.py", True), ("jtus/losses.py", False)):
+        cfg = tomllib.loads(mu.config_block(module, mu.TESTS[module]))["tool"]["mutmut"]
+        assert cfg["paths_to_mutate"] == [module] and cfg["tests_dir"] == mu.TESTS[module]
+        args = cfg["pytest_add_cli_args"]
+        assert args[:2] == ["-n", "0"] and ("-k" in args) == k
+        if k:
+            assert args[args.index("-k") + 1].startswith("not test_trains_with_decreasing")
     out = str(tmp_path / "results.md")
     mu.write_results(out, [("jtus/metrics.py", 10, 9, 9, "100%", 5.0, [])], "cmd-a")
     mu.write_results(out, [("jtus/losses.py", 20, 18, 17, "94%", 7.0, ["m.x_b"])], "cmd-b")

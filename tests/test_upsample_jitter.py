@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from jtus import sampling
+from jtus.sampling import jitter
 
 
 @pytest.mark.parametrize("factor", [2, 4])
@@ -148,11 +149,44 @@ def test_fsr2_length(factor, n):
 
 
 def test_jitter_sequence_names():
-    np.testing.assert_array_equal(sampling.jitter_sequence("thesis", 4), sampling.thesis_4x4())
-    with pytest.raises(ValueError, match="factor"):
-        sampling.jitter_sequence("thesis", 3)
-    with pytest.raises(ValueError, match="name"):
-        sampling.jitter_sequence("sobol", 2)
+    seq = sampling.jitter_sequence
+    np.testing.assert_array_equal(seq("thesis", 4), sampling.thesis_4x4())
+    np.testing.assert_array_equal(seq("thesis", 2), sampling.thesis_2x2())
+    np.testing.assert_array_equal(seq("halton", 4, length=5), sampling.halton(5))
+    np.testing.assert_array_equal(seq("halton", 2), sampling.halton(16))  # default length
+    np.testing.assert_array_equal(seq("halton8", 2), sampling.halton(8))
+    np.testing.assert_array_equal(seq("halton32", 4), sampling.halton(32))
+    np.testing.assert_array_equal(seq("halton120", 4), sampling.halton(120))
+    np.testing.assert_array_equal(seq("fsr2", 2), sampling.fsr2(2))
+    np.testing.assert_array_equal(seq("fsr2", 1.5), sampling.fsr2(1.5))
+    for name in jitter.VARIETY:  # what the randomized data draws from
+        assert seq(name, 4).shape[1] == 2
+    with pytest.raises(ValueError, match="factor: the thesis patterns exist for 2 and 4, got 3"):
+        seq("thesis", 3)
+    for bad in ("sobol", "Halton8", "haltonx", "fsr", "8halton"):
+        with pytest.raises(ValueError, match=r"name: expected one of \('thesis', 'halton', "
+                                             r"'fsr2'\) or halton<N>, got '" + bad):
+            seq(bad, 2)
+
+
+def test_jitter_generators_reject_bad_arguments_by_name():
+    """Each bound is where the docstring puts it: the edge value is accepted."""
+    assert sampling.van_der_corput(0, 2) == 0.0 and sampling.van_der_corput(1, 2) == 0.5
+    for n, base in ((-1, 2), (3, 1), (-1, 1), (0, 0)):
+        with pytest.raises(ValueError, match=rf"van_der_corput: need n >= 0 and base >= 2, "
+                                             rf"got n={n}, base={base}"):
+            sampling.van_der_corput(n, base)
+    np.testing.assert_array_equal(sampling.halton(1), [[0.5, 1 / 3]])
+    np.testing.assert_array_equal(sampling.halton(2, start=0), [[0, 0], [0.5, 1 / 3]])
+    np.testing.assert_allclose(sampling.halton(2, start=3, bases=(5, 7)),
+                               [[3 / 5, 3 / 7], [4 / 5, 4 / 7]], rtol=1e-15)
+    for count in (0, -2):
+        with pytest.raises(ValueError, match=rf"count: expected >= 1, got {count}"):
+            sampling.halton(count)
+    assert sampling.fsr2(1).shape == (8, 2)  # no up-sampling (native AA): 8 phases
+    for factor in (0, -2):
+        with pytest.raises(ValueError, match=rf"factor: expected > 0, got {factor}"):
+            sampling.fsr2(factor)
 
 
 @pytest.mark.parametrize("fwd,inv", [(sampling.rgb_to_ycocg, sampling.ycocg_to_rgb),
