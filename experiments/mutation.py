@@ -90,6 +90,7 @@ EQUIVALENT: dict[str, str] = {
     "jtus.sampling.jitter.x_thesis_2x2__mutmut_12": "int cells + float64 Halton: the same",
     # halton's start defaults to 1, the value fsr2 passes
     "jtus.sampling.jitter.x_fsr2__mutmut_7": "start=1 left out: halton's default is 1",
+    "jtus.sampling.color.x__apply__mutmut_8": "einsum subscripts in upper case: the same sum",
 }
 
 OUT = os.path.join(ROOT, "docs", "results", "mutation", "results.md")

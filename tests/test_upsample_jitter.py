@@ -196,6 +196,18 @@ def test_colour_round_trip(x64, rng, fwd, inv):
     np.testing.assert_allclose(inv(fwd(rgb)), rgb, atol=1e-14)
 
 
+@pytest.mark.parametrize("fn", [sampling.rgb_to_ycocg, sampling.ycocg_to_rgb,
+                                sampling.rgb_to_ycbcr, sampling.ycbcr_to_rgb])
+def test_colour_transforms_keep_the_input_dtype(fn):
+    """A half-precision or float32 image stays so (with 64-bit types on, a float64
+    matrix would promote a float32 image)."""
+    x = jnp.full((2, 3), 0.25)
+    assert fn(x.astype(jnp.bfloat16)).dtype == jnp.bfloat16
+    with jax.enable_x64(True):
+        assert fn(x.astype(jnp.float32)).dtype == jnp.float32
+        assert fn(x.astype(jnp.float64)).dtype == jnp.float64
+
+
 def test_colour_known_values():
     white = jnp.ones((1, 3))
     np.testing.assert_allclose(sampling.rgb_to_ycocg(white), [[1, 0, 0]], atol=1e-7)
