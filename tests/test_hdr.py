@@ -39,6 +39,31 @@ def test_tonemap_round_trip_and_range():
     assert np.isfinite(np.asarray(sampling.inverse_tonemap(jnp.ones((1, 3))))).all()
 
 
+def test_tonemap_and_display_against_their_formulas():
+    """Hand-computed values on [B,H,W,3] images (the max is over the channels, never
+    over a spatial axis); ``display`` multiplies by the exposure of each batch element
+    before the tone map, leaves LDR frames (no exposure) as they are, and keeps the
+    image's dtype (a float64 exposure with 64-bit types on would promote float32)."""
+    rgb = np.array([[[[1.0, 3.0, 0.5], [0.0, 0.0, 0.0]],
+                     [[0.2, 0.1, 0.4], [7.0, 1.0, 2.0]]],
+                    [[[0.5, 0.5, 0.5], [4.0, 0.0, 1.0]],
+                     [[1.0, 2.0, 3.0], [0.0, 9.0, 1.0]]]])  # [2,2,2,3]
+    want = rgb / (1 + rgb.max(-1, keepdims=True))
+    np.testing.assert_allclose(sampling.tonemap(jnp.asarray(rgb)), want, rtol=1e-6)
+    np.testing.assert_allclose(sampling.inverse_tonemap(jnp.asarray(want)), rgb, rtol=1e-5)
+    e = np.array([0.5, 4.0])
+    pre = rgb * e[:, None, None, None]
+    np.testing.assert_allclose(sampling.display(jnp.asarray(rgb), jnp.asarray(e)),
+                               pre / (1 + pre.max(-1, keepdims=True)), rtol=1e-6)
+    x = jnp.asarray(rgb, jnp.float32)
+    assert sampling.display(x, None) is x
+    assert sampling.display(x.astype(jnp.bfloat16), jnp.asarray(e, jnp.float32)).dtype == \
+        jnp.bfloat16
+    with jax.enable_x64(True):
+        assert sampling.display(x, np.asarray(e)).dtype == jnp.float32
+        assert sampling.exposure_scale(np.asarray(e), x).shape == (2, 1, 1, 1)
+
+
 def _model(name):
     """A registered model at 4x with parameters (trained where jtus ships them). Built
     in the test, not at collection: every xdist worker collects every module, and
