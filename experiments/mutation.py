@@ -97,6 +97,17 @@ EQUIVALENT: dict[str, str] = {
                                                     "in JAX (clamped)",
     "jtus.sampling.color.x_ycbcr_to_rgb__mutmut_7": "[..., 3] of 3 channels is [..., 2] "
                                                     "in JAX (clamped)",
+    "jtus.sampling.upsample.x_zero_upsample__mutmut_22": "cell[:, 1:3] of a [B,2] array is "
+                                                         "cell[:, 1:2]",
+    # the edge branch (pad_edge) and jnp.pad(mode="edge") give the same array
+    "jtus.sampling.upsample.x_neighbourhood__mutmut_10": "'edge' sent to jnp.pad's own edge "
+                                                         "mode: the same padding",
+    "jtus.sampling.upsample.x_neighbourhood__mutmut_11": "'edge' sent to jnp.pad's own edge "
+                                                         "mode: the same padding",
+    "jtus.sampling.upsample.x_dilate_motion__mutmut_35": "take_along_axis's axis defaults to "
+                                                         "-1 in JAX",
+    "jtus.sampling.upsample.x_dilate_motion__mutmut_38": "[..., 1] of a size-1 axis is "
+                                                         "[..., 0] in JAX (clamped)",
 }
 
 OUT = os.path.join(ROOT, "docs", "results", "mutation", "results.md")

@@ -7,6 +7,7 @@ import pytest
 
 from jtus import sampling
 from jtus.sampling import jitter
+from tests import seqdata
 
 
 @pytest.mark.parametrize("factor", [2, 4])
@@ -95,9 +96,67 @@ def test_dense_bilinear_equals_sampling(x64, rng, factor):
         np.testing.assert_allclose(g, r, rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("mode", ["edge", "constant", "reflect"])
+@pytest.mark.parametrize("size", [3, 5])
+def test_neighbourhood_against_numpy(rng, size, mode):
+    """Raster order of each pixel's size x size window, padded by numpy's ``mode``."""
+    x = rng.normal(size=(2, 5, 6, 3)).astype(np.float32)
+    r = size // 2
+    p = np.pad(x, ((0, 0), (r, r), (r, r), (0, 0)), mode=mode)
+    want = np.stack([p[:, dy:dy + 5, dx:dx + 6] for dy in range(size) for dx in range(size)],
+                    -1)
+    got = sampling.neighbourhood(jnp.asarray(x), size, mode=mode)
+    assert got.shape == (2, 5, 6, 3, size * size)
+    np.testing.assert_array_equal(got, want)
+    if mode == "edge":  # the default
+        np.testing.assert_array_equal(sampling.neighbourhood(jnp.asarray(x), size), want)
+
+
+def test_jitter_cell_clamps_into_the_lr_pixel():
+    """floor(jitter * f), clamped to [0, f-1]: jitter 1.0 (the upper edge) is the last
+    cell, a rounding below 0 the first; int32 cells."""
+    jit = jnp.asarray([[-1e-7, 1.0], [0.0, 0.999], [0.26, 0.5], [0.74, 0.2499]], jnp.float32)
+    cells = sampling.jitter_cell(jit, 4)
+    assert cells.dtype == jnp.int32
+    np.testing.assert_array_equal(cells, [[0, 3], [0, 3], [1, 2], [2, 0]])
+    np.testing.assert_array_equal(sampling.jitter_cell(jit, 2), [[0, 1], [0, 1], [0, 1], [1, 0]])
+
+
+def test_zero_upsample_keeps_the_input_dtype():
+    jit = jnp.asarray([[0.1, 0.9]])
+    x = jnp.ones((1, 2, 2, 1))
+    assert sampling.zero_upsample(x.astype(jnp.bfloat16), jit, 2).dtype == jnp.bfloat16
+    with jax.enable_x64(True):
+        assert sampling.zero_upsample(x, jit, 2).dtype == jnp.float32
+
+
+def test_reproject_coords_are_hr_centres_plus_upsampled_motion(x64, rng):
+    """HR pixel centres (X + 0.5, Y + 0.5) plus f times the LR motion up-sampled
+    bilinearly (``F.interpolate``, align_corners False: ``seqdata.jau_reference`` at
+    jitter 0.5); half-precision motion gives float32 positions."""
+    f, h, w = 4, 3, 5
+    mv = rng.uniform(-2, 2, size=(2, h, w, 2))
+    got = np.asarray(sampling.reproject_coords(jnp.asarray(mv), f))
+    up = seqdata.jau_reference(mv, np.full((2, 2), 0.5), f)
+    Y, X = np.mgrid[0:h * f, 0:w * f] + 0.5
+    want = np.stack([X, Y], -1)[None] + f * up
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    assert sampling.reproject_coords(jnp.asarray(mv, jnp.float16), f).dtype == jnp.float32
+
+
 def test_upsample_bad_inputs():
     with pytest.raises(ValueError, match="factor"):
         sampling.pixel_unshuffle(jnp.zeros((1, 6, 6, 1)), 4)
+    for hh, ww in ((4, 3), (3, 4)):  # either side not divisible
+        with pytest.raises(ValueError, match=f"x: size {hh}x{ww} not divisible by factor 2"):
+            sampling.pixel_unshuffle(jnp.zeros((1, hh, ww, 1)), 2)
+    with pytest.raises(ValueError, match="x: channels 6 not divisible by factor\\^2=4"):
+        sampling.pixel_shuffle(jnp.zeros((1, 2, 2, 6)), 2)
+    for factor in (0, 2.0):
+        with pytest.raises(ValueError, match=f"factor: expected a positive int, got {factor}"):
+            sampling.pixel_shuffle(jnp.zeros((1, 2, 2, 4)), factor)
+    with pytest.raises(ValueError, match=r"depth: expected \(1, 3, 3, 1\), got \(1, 3, 3, 2\)"):
+        sampling.dilate_motion(jnp.zeros((1, 3, 3, 2)), jnp.zeros((1, 3, 3, 2)))
     with pytest.raises(ValueError, match="jitter"):
         sampling.zero_upsample(jnp.zeros((2, 3, 3, 1)), jnp.zeros((1, 2)), 2)
     with pytest.raises(ValueError, match="factor"):
