@@ -104,6 +104,22 @@ EQUIVALENT: dict[str, str] = {
                                                          "mode: the same padding",
     "jtus.sampling.upsample.x_neighbourhood__mutmut_11": "'edge' sent to jnp.pad's own edge "
                                                          "mode: the same padding",
+    # bilinear up-sampling through the warp's sampler instead of the dense stencil: the
+    # same values (test_dense_bilinear_equals_sampling checks the two agree)
+    "jtus.sampling.upsample.x_upsample__mutmut_6": "bilinear through sample(): the same "
+                                                   "values",
+    "jtus.sampling.upsample.x_upsample__mutmut_7": "bilinear through sample(): the same "
+                                                   "values",
+    # the phase positions (k + 0.5) / f - 0.5 in another float type before the weights
+    # are cast to the image's dtype: exact (dyadic) for f = 2 and 4 in any type
+    "jtus.sampling.upsample.x_upsample__mutmut_8": "phase positions in the default float "
+                                                   "type: exact for f = 2, 4",
+    "jtus.sampling.upsample.x_upsample__mutmut_9": "phase positions in the default float "
+                                                   "type: exact for f = 2, 4",
+    "jtus.sampling.upsample.x_upsample__mutmut_10": "phase positions in the default float "
+                                                    "type: exact for f = 2, 4",
+    "jtus.sampling.upsample.x_upsample__mutmut_18": "phase positions in the default float "
+                                                    "type: exact for f = 2, 4",
     "jtus.sampling.upsample.x_dilate_motion__mutmut_35": "take_along_axis's axis defaults to "
                                                          "-1 in JAX",
     "jtus.sampling.upsample.x_dilate_motion__mutmut_38": "[..., 1] of a size-1 axis is "

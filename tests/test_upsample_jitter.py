@@ -122,6 +122,16 @@ def test_jitter_cell_clamps_into_the_lr_pixel():
     np.testing.assert_array_equal(sampling.jitter_cell(jit, 2), [[0, 1], [0, 1], [0, 1], [1, 0]])
 
 
+def test_hr_to_lr_coords_are_hr_centres_in_lr_units():
+    from jtus.sampling.upsample import hr_to_lr_coords
+    xy = hr_to_lr_coords(2, 1, 2, 4, jnp.bfloat16)
+    assert xy.shape == (2, 4, 8, 2) and xy.dtype == jnp.bfloat16
+    np.testing.assert_array_equal(np.asarray(xy[1, 3, :, 0], np.float32),
+                                  (np.arange(8) + 0.5) / 4)
+    np.testing.assert_array_equal(np.asarray(xy[0, :, 5, 1], np.float32),
+                                  (np.arange(4) + 0.5) / 4)
+
+
 def test_zero_upsample_keeps_the_input_dtype():
     jit = jnp.asarray([[0.1, 0.9]])
     x = jnp.ones((1, 2, 2, 1))

@@ -56,6 +56,19 @@ def test_upsample_bilinear_matches_interpolate_float64(x64, rng):
 
 
 @pytest.mark.parametrize("factor", [2, 3, 4])
+def test_upsample_bicubic_matches_interpolate_float64(x64, rng, factor):
+    """The non-bilinear methods sample the LR image at the HR centres: bicubic equals
+    ``F.interpolate(mode="bicubic")`` (a=-0.75, borders clamped); a float32 image stays
+    float32 with 64-bit types on."""
+    x = rng.normal(size=(2, 6, 5, 2))
+    ours = np.asarray(sampling.upsample(jnp.asarray(x), factor, method="bicubic"))
+    np.testing.assert_allclose(ours, torch_ref.interpolate_bicubic(x, factor), rtol=0,
+                               atol=1e-12)
+    x32 = jnp.asarray(x, jnp.float32)
+    assert sampling.upsample(x32, factor, method="bicubic").dtype == jnp.float32
+
+
+@pytest.mark.parametrize("factor", [2, 3, 4])
 def test_pixel_shuffle_exact(rng, factor):
     x = rng.normal(size=(2, 5, 6, 2 * factor * factor)).astype(np.float32)
     ours = np.asarray(sampling.pixel_shuffle(jnp.asarray(x), factor))

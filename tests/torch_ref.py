@@ -22,3 +22,9 @@ def grid_sample(image, grid, mode, align_corners=False):
 def interpolate_bilinear(x, factor):
     return to_nhwc(F.interpolate(to_nchw(x), scale_factor=factor, mode="bilinear",
                                  align_corners=False))
+
+
+def interpolate_bicubic(x, factor):
+    """Keys a=-0.75, indices clamped at the border (PyTorch's upsample_bicubic2d)."""
+    return to_nhwc(F.interpolate(to_nchw(x), scale_factor=factor, mode="bicubic",
+                                 align_corners=False))
