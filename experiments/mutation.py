@@ -174,12 +174,17 @@ def pytest_sessionstart(session):  # added by experiments/mutation.py
 """
 
 
+def scratch_dir(module, workdir):
+    """The scratch copy of the repository in which ``module``'s mutants run."""
+    return os.path.join(workdir, module.replace("/", "_").removesuffix(".py"))
+
+
 def meta_paths(module, workdir):
     """``(mutmut's result file for module in the scratch copy, its committed copy)``.
     mutmut keeps each mutant's exit code in ``mutants/<module>.meta`` with a hash of every
     function, and on a new run keeps the results of the functions whose hash is the same:
     restoring the file into a fresh scratch copy resumes a run on another machine."""
-    dest = os.path.join(workdir, module.replace("/", "_").removesuffix(".py"))
+    dest = scratch_dir(module, workdir)
     return (os.path.join(dest, "mutants", module + ".meta"),
             os.path.join(SAVED, module.replace("/", "_") + ".meta"))
 
@@ -193,8 +198,25 @@ def save_meta(module, workdir):
         print(f"saved {os.path.relpath(live, ROOT)} -> {os.path.relpath(saved, ROOT)}")
 
 
+def module_status(dest, env=None):
+    """``{mutant: status}`` of the scratch copy ``dest``, as mutmut reports it."""
+    res = subprocess.run(["mutmut", "results", "--all", "true"], cwd=dest, env=env,
+                         capture_output=True, text=True, check=True).stdout
+    return dict(re.findall(r"^\s+(\S+): (.+)$", res, re.M))
+
+
+def row(module, status, seconds):
+    """A results row: ``(module, mutants, run, killed, rate, seconds, survivors)``."""
+    counts, tested, killed = summarize(status)
+    survivors = sorted(k for k, v in status.items() if v == "survived" and k not in EQUIVALENT)
+    rate = f"{100 * killed / tested:.0f}%" if tested else "n/a"
+    print(f"{module}: {killed}/{tested} killed ({rate}), {dict(counts)}"
+          + (f", {seconds:.0f} s" if seconds is not None else ""))
+    return (module, len(status), tested, killed, rate, seconds, survivors)
+
+
 def run_module(module, workdir, max_children, recheck=False, fresh=False, op_by_op=False):
-    dest = os.path.join(workdir, module.replace("/", "_").removesuffix(".py"))
+    dest = scratch_dir(module, workdir)
     scratch_copy(dest)  # the current sources and tests (mutmut re-mutates what changed)
     live, saved = meta_paths(module, workdir)
     if not fresh and not os.path.exists(live) and os.path.exists(saved):
@@ -212,9 +234,7 @@ def run_module(module, workdir, max_children, recheck=False, fresh=False, op_by_
     os.makedirs(env["JTUS_TEST_JAX_CACHE"], exist_ok=True)
 
     def status():
-        res = subprocess.run(["mutmut", "results", "--all", "true"], cwd=dest, env=env,
-                             capture_output=True, text=True, check=True).stdout
-        return dict(re.findall(r"^\s+(\S+): (.+)$", res, re.M))
+        return module_status(dest, env)
 
     t0 = time.perf_counter()
     if not recheck:
@@ -258,25 +278,25 @@ def main(argv=None):
                    help="copy each module's mutmut results (mutants/<module>.meta) to "
                         "experiments/checkpoints/mutation/ to commit, and exit")
     args = p.parse_args(argv)
-    if args.save_only:
+    command = "python experiments/mutation.py " + " ".join(
+        argv if argv is not None else sys.argv[1:])
+    if args.save_only:  # and the results so far of every module with a scratch copy
+        rows = []
         for m in args.modules:
             save_meta(m, args.workdir)
+            live, _ = meta_paths(m, args.workdir)
+            if os.path.exists(live) and shutil.which("mutmut"):
+                rows.append(row(m, module_status(scratch_dir(m, args.workdir)), None))
+        write_results(args.out, rows, command)
         return
     if shutil.which("mutmut") is None:
         sys.exit("error: mutmut is not installed (pip install mutmut)")
     rows = []
-    for m in args.modules:
+    for m in args.modules:  # the results file is written after each module
         status, seconds = run_module(m, args.workdir, args.max_children, args.recheck,
                                      args.fresh, args.op_by_op)
-        counts, tested, killed = summarize(status)
-        survivors = sorted(k for k, v in status.items()
-                           if v == "survived" and k not in EQUIVALENT)
-        rate = f"{100 * killed / tested:.0f}%" if tested else "n/a"
-        rows.append((m, len(status), tested, killed, rate, seconds, survivors))
-        print(f"{m}: {killed}/{tested} killed ({rate}), {dict(counts)}, {seconds:.0f} s")
-    command = "python experiments/mutation.py " + " ".join(
-        argv if argv is not None else sys.argv[1:])
-    write_results(args.out, rows, command)
+        rows.append(row(m, status, seconds))
+        write_results(args.out, rows, command)
 
 
 def write_results(out, rows, command):
@@ -287,7 +307,8 @@ def write_results(out, rows, command):
     table = json.load(open(store)) if os.path.exists(store) else {}
     for m, n, tested, killed, rate, seconds, survivors in rows:
         table[m] = dict(mutants=n, run=tested, killed=killed, rate=rate,
-                        seconds=round(seconds), survivors=survivors, command=command,
+                        seconds=None if seconds is None else round(seconds),
+                        survivors=survivors, command=command,
                         date=time.strftime("%Y-%m-%d"))
     tmp = store + ".tmp"
     with open(tmp, "w") as fh:
@@ -299,11 +320,14 @@ def write_results(out, rows, command):
                  "| seconds | made by (date) |\n| --- | --- | --- | --- | --- | --- | --- |\n")
         for m in order:
             r = table[m]
+            secs = "-" if r["seconds"] is None else f"{r['seconds']:,}"
             fh.write(f"| `{m}` | {r['mutants']} | {r['run']} | {r['killed']} | {r['rate']} | "
-                     f"{r['seconds']:,} | `{r['command']}` ({r['date']}) |\n")
+                     f"{secs} | `{r['command']}` ({r['date']}) |\n")
         fh.write("\nA timed-out mutant is not counted as killed: with JAX a hang can be the "
                  "harness's, not the mutant's. A `--recheck` row's seconds are those of the "
-                 "recheck only. Surviving mutants:\n\n")
+                 "recheck only. A `--save-only` row, without seconds, is the results saved so far: "
+                 "mutants not run yet (mutants minus run minus equivalents), survivors not yet "
+                 "run again against newer tests. Surviving mutants:\n\n")
         for m in order:
             fh.write(f"- `{m}`: " + (", ".join(f"`{s}`" for s in table[m]["survivors"])
                                      or "none") + "\n")

@@ -419,6 +419,9 @@ def test_mutation_script_counts_mutants_and_sets_the_jit_mode(tmp_path, monkeypa
     text = open(out).read()
     assert "| `jtus/metrics.py` | 10 | 9 | 9 | 100% |" in text and "`cmd-a`" in text
     assert "| `jtus/losses.py` | 20 | 18 | 17 | 94% |" in text and "`m.x_b`" in text
+    mu.write_results(out, [("jtus/rollout.py", 9, 4, 4, "100%", None, [])], "cmd-c")
+    text = open(out).read()  # a --save-only row has no seconds; the others are kept
+    assert "| `jtus/rollout.py` | 9 | 4 | 4 | 100% | - | `cmd-c`" in text and "`cmd-a`" in text
 
 
 def test_comparison_table_only_rescores_the_named_systems(tmp_path, monkeypatch):
