@@ -110,16 +110,8 @@ EQUIVALENT: dict[str, str] = {
                                                    "values",
     "jtus.sampling.upsample.x_upsample__mutmut_7": "bilinear through sample(): the same "
                                                    "values",
-    # the phase positions (k + 0.5) / f - 0.5 in another float type before the weights
-    # are cast to the image's dtype: exact (dyadic) for f = 2 and 4 in any type
-    "jtus.sampling.upsample.x_upsample__mutmut_8": "phase positions in the default float "
-                                                   "type: exact for f = 2, 4",
-    "jtus.sampling.upsample.x_upsample__mutmut_9": "phase positions in the default float "
-                                                   "type: exact for f = 2, 4",
-    "jtus.sampling.upsample.x_upsample__mutmut_10": "phase positions in the default float "
-                                                    "type: exact for f = 2, 4",
-    "jtus.sampling.upsample.x_upsample__mutmut_18": "phase positions in the default float "
-                                                    "type: exact for f = 2, 4",
+    "jtus.sampling.upsample.x_jitter_aligned_upsample__mutmut_11": "bilinear through "
+                                                                   "sample(): the same values",
     "jtus.sampling.upsample.x_dilate_motion__mutmut_35": "take_along_axis's axis defaults to "
                                                          "-1 in JAX",
     "jtus.sampling.upsample.x_dilate_motion__mutmut_38": "[..., 1] of a size-1 axis is "

@@ -132,6 +132,21 @@ def test_hr_to_lr_coords_are_hr_centres_in_lr_units():
                                   (np.arange(4) + 0.5) / 4)
 
 
+@pytest.mark.parametrize("factor", [3, 4])
+def test_float32_upsampling_is_the_same_with_64_bit_types_on(rng, factor):
+    """Bilinear up-sampling and JAU of float32 images compute their phase weights in
+    float32 whether or not 64-bit types are on (the same bits, as training and the
+    float64 references run side by side)."""
+    x = jnp.asarray(rng.normal(size=(3, 4, 5, 2)), jnp.float32)
+    jit = jnp.asarray(rng.uniform(0, 1, size=(3, 2)), jnp.float32)
+    off = (sampling.upsample(x, factor), sampling.jitter_aligned_upsample(x, jit, factor))
+    with jax.enable_x64(True):
+        on = (sampling.upsample(x, factor), sampling.jitter_aligned_upsample(x, jit, factor))
+    for a, b in zip(on, off):
+        assert a.dtype == jnp.float32
+        np.testing.assert_array_equal(a, b)
+
+
 def test_zero_upsample_keeps_the_input_dtype():
     jit = jnp.asarray([[0.1, 0.9]])
     x = jnp.ones((1, 2, 2, 1))
