@@ -234,9 +234,9 @@ def run_module(module, workdir, max_children, recheck=False, fresh=False, op_by_
     if not recheck:
         subprocess.run(["mutmut", "run", "--max-children", str(max_children)], cwd=dest,
                        env=env, stdout=subprocess.DEVNULL, check=False)  # resumes
-    else:  # only the survivors of earlier runs, against the tests as they are now
+    else:  # the survivors (and the mutants not run yet), against the tests as they are now
         survivors = [k for k, v in status().items()
-                     if v in ("survived", "no tests") and k not in EQUIVALENT]
+                     if v in ("survived", "no tests", "not checked") and k not in EQUIVALENT]
         if survivors:
             subprocess.run(["mutmut", "run", "--max-children", str(max_children), *survivors],
                            cwd=dest, env=env, stdout=subprocess.DEVNULL, check=False)
@@ -259,8 +259,8 @@ def main(argv=None):
     p.add_argument("--max-children", type=int, default=2)
     p.add_argument("--out", default=OUT)
     p.add_argument("--recheck", action="store_true",
-                   help="run only the surviving (and untested) mutants of earlier runs again, "
-                        "against the tests as they are now (no new mutants)")
+                   help="run only the surviving, untested and not yet run mutants of earlier "
+                        "runs, against the tests as they are now")
     p.add_argument("--op-by-op", action="store_true",
                    help="run the mutants with JAX_DISABLE_JIT=1 (faster where the tests are "
                         "small and every mutant changes the compiled programs: "
