@@ -133,7 +133,7 @@ def _close(a, b, rtol=1e-12, atol=1e-14):
 
 
 def test_start_is_an_empty_float32_carry():
-    target = jnp.ones((B, H, W, 3), jnp.float64)
+    target = jnp.ones((B, H, W, 3), jnp.float16)
     c = rollout.start("state", target)
     assert c.state == "state" and not bool(c.has_prev)
     for buf in (c.prev_out, c.prev_target):
