@@ -227,21 +227,18 @@ def run_module(module, workdir, max_children, recheck=False, fresh=False, op_by_
         env["JAX_DISABLE_JIT"] = "1"
     os.makedirs(env["JTUS_TEST_JAX_CACHE"], exist_ok=True)
 
-    def status():
-        return module_status(dest, env)
-
     t0 = time.perf_counter()
     if not recheck:
         subprocess.run(["mutmut", "run", "--max-children", str(max_children)], cwd=dest,
                        env=env, stdout=subprocess.DEVNULL, check=False)  # resumes
     else:  # the survivors (and the mutants not run yet), against the tests as they are now
-        survivors = [k for k, v in status().items()
+        survivors = [k for k, v in module_status(dest, env).items()
                      if v in ("survived", "no tests", "not checked") and k not in EQUIVALENT]
         if survivors:
             subprocess.run(["mutmut", "run", "--max-children", str(max_children), *survivors],
                            cwd=dest, env=env, stdout=subprocess.DEVNULL, check=False)
     save_meta(module, workdir)
-    return status(), time.perf_counter() - t0
+    return module_status(dest, env), time.perf_counter() - t0
 
 
 def summarize(status):
