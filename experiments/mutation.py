@@ -35,6 +35,7 @@ left out of the rate.
 from __future__ import annotations
 
 import argparse
+import ast
 import collections
 import json
 import os
@@ -114,6 +115,20 @@ EQUIVALENT: dict[str, str] = {
     "jtus.sampling.upsample.x_jitter_aligned_upsample__mutmut_11": "bilinear through "
                                                                    "sample(): the same values "
                                                                    "to rounding",
+    "jtus.sampling.upsample.x_jitter_aligned_upsample__mutmut_10": "bilinear through "
+                                                                   "sample(): the same values "
+                                                                   "to rounding",
+    "jtus.sampling.upsample.x_jitter_aligned_upsample__mutmut_36": "j[:, 1:3] of a [B,2] array "
+                                                                   "is j[:, 1:2]",
+    # lo is 0 or 1, exact in any float type: with 64-bit types on, a float64 lo makes each
+    # weight a product with an exact 0 or 1 (and a sum with an exact 0), and
+    # _bilinear_phases casts the weights back to the image's type: the same bits
+    "jtus.sampling.upsample.x__phase_weights__mutmut_6": "0/1 mask as float64: the same "
+                                                         "weights after the cast back",
+    # the HR pixel centres k + 0.5 are exact in float32 (below 2**23), and adding them
+    # to float64 motion promotes: the same float64 positions
+    "jtus.sampling.upsample.x_reproject_coords__mutmut_15": "float32 pixel centres are "
+                                                            "exact: the same positions",
     "jtus.sampling.upsample.x_dilate_motion__mutmut_35": "take_along_axis's axis defaults to "
                                                          "-1 in JAX",
     "jtus.sampling.upsample.x_dilate_motion__mutmut_38": "[..., 1] of a size-1 axis is "
@@ -142,6 +157,42 @@ def scratch_copy(dest):
 SKIP = {m: "not test_trains_with_decreasing_loss and not test_registry_builds_every_model"
         for m in ("jtus/models/kpn.py", "jtus/models/nsrr.py", "jtus/models/mlp.py")}
 SKIP["jtus/sampling/warp.py"] = "not test_check_grads_float64"
+
+
+# functions of a module left out of its mutation runs: not what a model's step computes
+# (FLOP accounting, PyTorch checkpoint conversion, a crop-sampling heuristic), and tested
+# by other files than the module's selection. Their mutants are neither run nor counted.
+OUT_OF_SCOPE = {
+    "jtus/models/dlctus.py": ("cost", "_torch_names", "_to_numpy", "params_from_torch",
+                              "_torch_shape", "params_to_torch", "load_torch_checkpoint"),
+    "jtus/models/tus.py": ("cost",),
+    "jtus/models/kpn.py": ("cost",),
+    "jtus/models/nsrr.py": ("_conv_flops", "cost"),
+    "jtus/models/mlp.py": ("acceptance", "cost"),
+}
+
+
+def in_scope(module, key):
+    """Whether the mutant ``key`` (``pkg.mod.x_function__mutmut_N``, or ``xǁClassǁmethod``
+    for a method) is of a function in ``module``'s scope."""
+    m = re.search(r"\.x_(\w+?)__mutmut_\d+$", key)
+    return not (m and m.group(1) in OUT_OF_SCOPE.get(module, ()))
+
+
+def scope_globs(module):
+    """mutmut name patterns of the functions in ``module``'s scope (``[]``: all of them)."""
+    if module not in OUT_OF_SCOPE:
+        return []
+    tree = ast.parse(open(os.path.join(ROOT, module)).read())
+    dotted = module.removesuffix(".py").replace("/", ".")
+    globs = []
+    for node in tree.body:
+        if isinstance(node, ast.FunctionDef) and node.name not in OUT_OF_SCOPE[module]:
+            globs.append(f"{dotted}.x_{node.name}__mutmut_*")
+        elif isinstance(node, ast.ClassDef) and any(
+                isinstance(b, ast.FunctionDef) for b in node.body):
+            globs.append(f"{dotted}.x\u01c1{node.name}\u01c1*")
+    return globs
 
 
 def config_block(module, tests):
@@ -192,17 +243,22 @@ def save_meta(module, workdir):
         print(f"saved {os.path.relpath(live, ROOT)} -> {os.path.relpath(saved, ROOT)}")
 
 
-def module_status(dest, env=None):
-    """``{mutant: status}`` of the scratch copy ``dest``, as mutmut reports it."""
-    res = subprocess.run(["mutmut", "results", "--all", "true"], cwd=dest, env=env,
+def module_status(module, workdir, env=None):
+    """``{mutant: status}`` of ``module``'s scratch copy, as mutmut reports it, for the
+    mutants in its scope."""
+    res = subprocess.run(["mutmut", "results", "--all", "true"],
+                         cwd=scratch_dir(module, workdir), env=env,
                          capture_output=True, text=True, check=True).stdout
-    return dict(re.findall(r"^\s+(\S+): (.+)$", res, re.M))
+    return {k: v for k, v in re.findall(r"^\s+(\S+): (.+)$", res, re.M)
+            if in_scope(module, k)}
 
 
 def row(module, status, seconds):
     """A results row: ``(module, mutants, run, killed, rate, seconds, survivors)``."""
     counts, tested, killed = summarize(status)
-    survivors = sorted(k for k, v in status.items() if v == "survived" and k not in EQUIVALENT)
+    survivors = sorted(k + (" (timed out)" if v == "timeout" else "")
+                       for k, v in status.items()
+                       if v in ("survived", "timeout") and k not in EQUIVALENT)
     rate = f"{100 * killed / tested:.0f}%" if tested else "n/a"
     print(f"{module}: {killed}/{tested} killed ({rate}), {dict(counts)}"
           + (f", {seconds:.0f} s" if seconds is not None else ""))
@@ -229,16 +285,25 @@ def run_module(module, workdir, max_children, recheck=False, fresh=False, op_by_
 
     t0 = time.perf_counter()
     if not recheck:
-        subprocess.run(["mutmut", "run", "--max-children", str(max_children)], cwd=dest,
-                       env=env, stdout=subprocess.DEVNULL, check=False)  # resumes
+        subprocess.run(["mutmut", "run", "--max-children", str(max_children),
+                        *scope_globs(module)],
+                       cwd=dest, env=env, stdout=subprocess.DEVNULL, check=False)  # resumes
     else:  # the survivors (and the mutants not run yet), against the tests as they are now
-        survivors = [k for k, v in module_status(dest, env).items()
-                     if v in ("survived", "no tests", "not checked") and k not in EQUIVALENT]
+        # mutmut records which tests call each function only for test names it has not
+        # seen: a test that kept its name but now calls more (a new assertion on an error
+        # message) would not be run against those functions' mutants. Recording again
+        # from scratch keeps the results and costs one op-by-op run of the selection.
+        stats = os.path.join(dest, "mutants", "mutmut-stats.json")
+        if os.path.exists(stats):
+            os.remove(stats)
+        survivors = [k for k, v in module_status(module, workdir, env).items()
+                     if v in ("survived", "no tests", "not checked", "timeout")
+                     and k not in EQUIVALENT]
         if survivors:
             subprocess.run(["mutmut", "run", "--max-children", str(max_children), *survivors],
                            cwd=dest, env=env, stdout=subprocess.DEVNULL, check=False)
     save_meta(module, workdir)
-    return module_status(dest, env), time.perf_counter() - t0
+    return module_status(module, workdir, env), time.perf_counter() - t0
 
 
 def summarize(status):
@@ -256,8 +321,8 @@ def main(argv=None):
     p.add_argument("--max-children", type=int, default=2)
     p.add_argument("--out", default=OUT)
     p.add_argument("--recheck", action="store_true",
-                   help="run only the surviving, untested and not yet run mutants of earlier "
-                        "runs, against the tests as they are now")
+                   help="run only the surviving, timed-out, untested and not yet run mutants "
+                        "of earlier runs, against the tests as they are now")
     p.add_argument("--op-by-op", action="store_true",
                    help="run the mutants with JAX_DISABLE_JIT=1 (faster where the tests are "
                         "small and every mutant changes the compiled programs: "
@@ -277,7 +342,7 @@ def main(argv=None):
             save_meta(m, args.workdir)
             live, _ = meta_paths(m, args.workdir)
             if os.path.exists(live) and shutil.which("mutmut"):
-                rows.append(row(m, module_status(scratch_dir(m, args.workdir)), None))
+                rows.append(row(m, module_status(m, args.workdir), None))
         write_results(args.out, rows, command)
         return
     if shutil.which("mutmut") is None:

@@ -392,6 +392,9 @@ def test_mutation_script_counts_mutants_and_sets_the_jit_mode(tmp_path, monkeypa
               equivalent: "survived"}
     counts, tested, killed = mu.summarize(status)
     assert (tested, killed) == (3, 1) and equivalent not in counts
+    # the results list a timed-out mutant with the survivors, marked as such
+    assert mu.row("m.py", status, None)[-1] == ["m.x_a__mutmut_2",
+                                                "m.x_a__mutmut_3 (timed out)"]
     conftest = open(os.path.join(os.path.dirname(__file__), "conftest.py")).read()
     assert "\nimport jax\n" in conftest and "\nimport os\n" in conftest  # the hook's names
     ns = {"jax": jax, "os": os}
@@ -413,6 +416,16 @@ def test_mutation_script_counts_mutants_and_sets_the_jit_mode(tmp_path, monkeypa
         assert args[:2] == ["-n", "0"] and ("-k" in args) == k
         if k:
             assert args[args.index("-k") + 1].startswith("not test_trains_with_decreasing")
+    # a model's scope: its step's functions and its Config's methods, not its FLOP count
+    globs, sep = mu.scope_globs("jtus/models/tus.py"), "\u01c1"  # mutmut's class separator
+    assert "jtus.models.tus.x_step__mutmut_*" in globs
+    assert f"jtus.models.tus.x{sep}Config{sep}*" in globs
+    assert not any("x_cost_" in g for g in globs) and mu.scope_globs("jtus/losses.py") == []
+    assert not mu.in_scope("jtus/models/tus.py", "jtus.models.tus.x_cost__mutmut_2")
+    assert mu.in_scope("jtus/models/tus.py", "jtus.models.tus.x__beta__mutmut_2")
+    method = f"jtus.models.tus.x{sep}Config{sep}__post_init____mutmut_1"
+    assert mu.in_scope("jtus/models/tus.py", method)
+    assert mu.in_scope("jtus/losses.py", "jtus.losses.x_cost__mutmut_1")
     out = str(tmp_path / "results.md")
     mu.write_results(out, [("jtus/metrics.py", 10, 9, 9, "100%", 5.0, [])], "cmd-a")
     mu.write_results(out, [("jtus/losses.py", 20, 18, 17, "94%", 7.0, ["m.x_b"])], "cmd-b")

@@ -68,6 +68,28 @@ def test_upsample_bicubic_matches_interpolate_float64(x64, rng, factor):
     assert sampling.upsample(x32, factor, method="bicubic").dtype == jnp.float32
 
 
+@pytest.mark.parametrize("method,mode", [("bicubic", "bicubic"), ("nearest", "nearest")])
+@pytest.mark.parametrize("factor", [2, 3, 4])
+def test_jau_non_bilinear_methods_equal_grid_sample_float64(x64, rng, method, mode, factor):
+    """JAU with a sampling method other than bilinear reads the LR image at each HR
+    centre minus the jitter plus half a pixel (thesis sec. 4.1.1), in the image's
+    precision: ``F.grid_sample`` (border padding) at those positions, written here in
+    normalized coordinates. Factor 3's positions are not dyadic, so positions computed
+    in float32 would miss by about 1e-7 of a pixel."""
+    b, h, w = 2, 5, 6
+    x = rng.normal(size=(b, h, w, 2))
+    jit = rng.uniform(0, 1, size=(b, 2))
+    ours = np.asarray(sampling.jitter_aligned_upsample(jnp.asarray(x), jnp.asarray(jit),
+                                                       factor, method=method))
+    assert ours.dtype == np.float64
+    Y, X = np.mgrid[0:h * factor, 0:w * factor] + 0.5
+    pos = np.stack([X, Y], -1)[None] / factor - jit[:, None, None, :] + 0.5  # LR pixels
+    grid = 2 * pos / np.array([w, h]) - 1
+    # nearest: a position exactly on a pixel edge rounds differently; none is here
+    # (random jitter), and both then take the pixel containing the point
+    np.testing.assert_allclose(ours, torch_ref.grid_sample(x, grid, mode), rtol=0, atol=1e-12)
+
+
 @pytest.mark.parametrize("factor", [2, 3, 4])
 def test_pixel_shuffle_exact(rng, factor):
     x = rng.normal(size=(2, 5, 6, 2 * factor * factor)).astype(np.float32)
