@@ -133,6 +133,24 @@ EQUIVALENT: dict[str, str] = {
                                                          "-1 in JAX",
     "jtus.sampling.upsample.x_dilate_motion__mutmut_38": "[..., 1] of a size-1 axis is "
                                                          "[..., 0] in JAX (clamped)",
+    # lax.scan's unroll is a schedule (how many steps one loop iteration runs), not a
+    # value; remat only changes what a backward pass recomputes, and metrics has none
+    "jtus.rollout.x_metrics__mutmut_1": "unroll=2 by default: a schedule, the same values",
+    "jtus.rollout.x_metrics__mutmut_54": "unroll left out (1): a schedule, the same values",
+    "jtus.rollout.x_metrics__mutmut_10": "remat None for False: both falsy",
+    "jtus.rollout.x_metrics__mutmut_14": "remat True in a rollout that is never "
+                                         "differentiated: the same forward",
+    # start() reads only the shape and dtype of its template, the same for every frame
+    # (and targets[1] of a one-frame sequence is targets[0]: JAX clamps static indices)
+    "jtus.rollout.x_metrics__mutmut_59": "targets[1] as the carry's template: same shape "
+                                         "and dtype",
+    # a custom_vjp's cotangent for a bool input (the reset flag) is float0 whatever the
+    # backward returns: JAX replaces it (tests/test_rollout_toy.py checks the types)
+    "jtus.rollout.x__zero_cotangent__mutmut_3": "bool zeros for the flag: JAX makes it float0",
+    "jtus.rollout.x__zero_cotangent__mutmut_9": "float64 zeros for the flag: JAX makes it "
+                                                "float0",
+    "jtus.rollout.x__zero_cotangent__mutmut_11": "float64 zeros for the flag: JAX makes it "
+                                                 "float0",
 }
 
 OUT = os.path.join(ROOT, "docs", "results", "mutation", "results.md")

@@ -135,7 +135,7 @@ def metrics(step, params, state, frames, targets, metric_fn, *, unroll=1, check=
 def parts(model):
     """``(advance, prepare)`` of a ``Model`` for ``window_loss`` (``Model``'s docstring);
     ``(step, None)`` for a model without the split."""
-    if getattr(model, "advance", None) is None:
+    if model.advance is None:
         return model.step, None
     return model.advance, model.prepare
 

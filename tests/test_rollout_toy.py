@@ -285,6 +285,31 @@ def test_window_loss_equals_the_loop_with_gradients(x64, mode, loss_frames, keep
         assert float(jnp.abs(g0[2]).max()) > 1e-6 and float(jnp.abs(g0[3]).max()) > 1e-6
 
 
+def test_reverse_backward_gives_the_frames_zero_cotangents_of_their_type(x64):
+    """``remat="reverse"`` differentiates the parameters and the carry (above); the
+    frames are data, and its backward hands them zero cotangents in their own types
+    (float64 here; autodiff's would be the frames' true gradients), the reset flags
+    float0 as autodiff does."""
+    frames, targets = _frames(first=False)
+    c0 = _carry_in(frames, targets, True)
+
+    def back(mode):
+        def f(c, fr):
+            return rollout.window_loss(_step, _loss, _params(), c, fr, targets,
+                                       loss_frames=T, **mode)[0]
+        loss, vjp = jax.vjp(f, c0, frames)
+        return vjp(jnp.ones_like(loss))
+
+    (c_ad, f_ad), (c_rev, f_rev) = back({}), back({"remat": "reverse"})
+    assert c_ad.has_prev.dtype == c_rev.has_prev.dtype == jax.dtypes.float0
+    leaves_ad, leaves_rev = jax.tree_util.tree_leaves(f_ad), jax.tree_util.tree_leaves(f_rev)
+    assert [(x.dtype, x.shape) for x in leaves_rev] == [(x.dtype, x.shape) for x in leaves_ad]
+    assert jax.dtypes.float0 in [x.dtype for x in leaves_rev]            # the reset flags
+    assert jnp.float64 in [x.dtype for x in leaves_rev]
+    assert not any(np.any(np.asarray(x, bool)) for x in leaves_rev
+                   if x.dtype != jax.dtypes.float0)
+
+
 def test_window_loss_rejects_bad_windows():
     frames, targets = _frames()
     c0 = _carry_in(frames, targets, False)
