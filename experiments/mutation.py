@@ -135,11 +135,41 @@ EQUIVALENT: dict[str, str] = {
                                                          "[..., 0] in JAX (clamped)",
     # lax.scan's unroll is a schedule (how many steps one loop iteration runs), not a
     # value; remat only changes what a backward pass recomputes, and metrics has none
+    "jtus.rollout.x__check__mutmut_10": "check_finite=True left out: validate's default "
+                                        "is True",
+    # a custom_vjp backward may return None for an input's cotangent: JAX instantiates
+    # zeros of that input's tangent type (float0 for the bool flag, the frames' own
+    # type), the same as the explicit zeros (checked by editing the source: the
+    # cotangent-type test passes with None)
+    "jtus.rollout.x__segment_reverse__mutmut_106": "None for the flag's cotangent: JAX "
+                                                   "instantiates float0 zeros",
+    "jtus.rollout.x__segment_reverse__mutmut_109": "None for the flag's cotangent: JAX "
+                                                   "instantiates float0 zeros",
+    "jtus.rollout.x__segment_reverse__mutmut_111": "None for the frames' cotangents: JAX "
+                                                   "instantiates zeros of their types",
+    "jtus.rollout.x__segment_reverse__mutmut_108": "flags[1] for flags[0]: a zero of the "
+                                                   "same shape and type",
+    "jtus.rollout.x_outputs__mutmut_1": "remat=True by default: changes a backward "
+                                        "pass's recomputation, not a value",
+    "jtus.rollout.x_outputs__mutmut_2": "unroll=2 by default: a schedule, the same values",
+    "jtus.rollout.x_outputs__mutmut_28": "unroll left out (1): a schedule, the same values",
     "jtus.rollout.x_metrics__mutmut_1": "unroll=2 by default: a schedule, the same values",
     "jtus.rollout.x_metrics__mutmut_54": "unroll left out (1): a schedule, the same values",
     "jtus.rollout.x_metrics__mutmut_10": "remat None for False: both falsy",
     "jtus.rollout.x_metrics__mutmut_14": "remat True in a rollout that is never "
                                          "differentiated: the same forward",
+    "jtus.rollout.x_tbptt_grads__mutmut_1": "remat=True by default: a schedule, the same "
+                                            "gradients",
+    "jtus.rollout.x_tbptt_grads__mutmut_11": "remat None for False: both falsy",
+    "jtus.rollout.x_tbptt_grads__mutmut_21": "remat left out (False, the default passed)",
+    "jtus.rollout.x_tbptt_grads__mutmut_2": "unroll=2 by default: a schedule, the same values",
+    "jtus.rollout.x_tbptt_grads__mutmut_22": "unroll left out (1): a schedule, the same values",
+    # k1 <= k2 always (tbptt_windows checks it); at k1 == k2 keep_at=k1 keeps the carry
+    # after the window's last frame, which is the final carry handed on without keep_at
+    "jtus.rollout.x_tbptt_grads__mutmut_24": "keep_at=k1=k2: the window's final carry, "
+                                             "as without keep_at",
+    "jtus.rollout.x_tbptt_grads__mutmut_25": "keep_at=k1=k2: the window's final carry, "
+                                             "as without keep_at",
     # start() reads only the shape and dtype of its template, the same for every frame
     # (and targets[1] of a one-frame sequence is targets[0]: JAX clamps static indices)
     "jtus.rollout.x_metrics__mutmut_59": "targets[1] as the carry's template: same shape "

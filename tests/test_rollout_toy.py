@@ -14,6 +14,7 @@ and ``has_prev`` is False only before the first frame of a video.
 """
 
 import functools
+import re
 
 import jax
 import jax.numpy as jnp
@@ -310,6 +311,37 @@ def test_reverse_backward_gives_the_frames_zero_cotangents_of_their_type(x64):
                    if x.dtype != jax.dtypes.float0)
 
 
+@pytest.mark.parametrize("mode", [{}, {"remat": "reverse"}], ids=["plain", "reverse"])
+def test_float32_window_loss_stays_float32_with_64_bit_types_on(mode):
+    """A float32 window (frames, parameters, carry: float32 training) gives a float32
+    loss with 64-bit types on, in both backward modes: the loss-free frames before the
+    loss frames add float32 zeros, not default-typed ones."""
+    frames, targets = _frames(first=False)                      # float32: x64 is off
+    params, c0 = _params(), _carry_in(frames, targets, False)
+    assert frames.color.dtype == params["a"].dtype == jnp.float32
+    with jax.enable_x64(True):
+        loss, _ = rollout.window_loss(_step, _loss, params, c0, frames, targets,
+                                      loss_frames=2, **mode)
+    assert loss.dtype == jnp.float32
+
+
+def test_loss_ops_carry_the_profilers_stage_name():
+    """``jtus.profile`` attributes a training step's ops to stages by their scope names
+    (``profile.STAGES``): the window loss's ops are in the ``loss`` scope, the hoisted
+    preparation's in ``prepare``."""
+    from jtus import profile
+
+    frames, targets = _frames(first=False)
+    c0 = _carry_in(frames, targets, False)
+    hlo = jax.jit(lambda p: rollout.window_loss(_advance, _loss, p, c0, frames, targets,
+                                                loss_frames=2, prepare=_prepare)[0]).lower(
+        _params()).as_text(debug_info=True)
+    assert "loss" in profile.STAGES
+    names = set(re.findall(r'loc\("([^"]+)"', hlo))    # the ops' scoped names
+    assert any(n.split("/")[0] == "loss" or "/loss/" in n for n in names)
+    assert any("/prepare/" in n for n in names)
+
+
 def test_window_loss_rejects_bad_windows():
     frames, targets = _frames()
     c0 = _carry_in(frames, targets, False)
@@ -339,6 +371,8 @@ def test_tbptt_windows_plan_edges():
     assert rollout.tbptt_windows(5, 5, 5) == [(0, 5)]
     assert rollout.tbptt_windows(5, 1, 1) == [(t, t + 1) for t in range(5)]
     assert rollout.tbptt_windows(7, 2, 3) == [(0, 3), (2, 5), (4, 7)]
+    # (length - k2) a multiple of k1 while (length + k2) is not: the difference is checked
+    assert rollout.tbptt_windows(7, 3, 4) == [(0, 4), (3, 7)]
     w = rollout.tbptt_windows(6, 3, 3)[1]
     assert (w.start, w.stop) == (3, 6)
     for k1, k2, length in ((0, 2, 4), (2, 5, 4), (3, 2, 4)):
