@@ -149,6 +149,12 @@ EQUIVALENT: dict[str, str] = {
                                                    "instantiates zeros of their types",
     "jtus.rollout.x__segment_reverse__mutmut_108": "flags[1] for flags[0]: a zero of the "
                                                    "same shape and type",
+    "jtus.rollout.x__body__mutmut_11": "checkpoint policy None (save nothing): what a "
+                                       "backward recomputes, not a value",
+    "jtus.rollout.x__body__mutmut_13": "checkpoint policy left out (None): the same",
+    "jtus.rollout.x__segment__mutmut_51": "unroll left out (1): a schedule, the same values",
+    "jtus.rollout.x_window_loss__mutmut_1": "remat=True by default: a backward's "
+                                            "recomputation, the same gradients",
     "jtus.rollout.x_outputs__mutmut_1": "remat=True by default: changes a backward "
                                         "pass's recomputation, not a value",
     "jtus.rollout.x_outputs__mutmut_2": "unroll=2 by default: a schedule, the same values",
