@@ -133,8 +133,6 @@ EQUIVALENT: dict[str, str] = {
                                                          "-1 in JAX",
     "jtus.sampling.upsample.x_dilate_motion__mutmut_38": "[..., 1] of a size-1 axis is "
                                                          "[..., 0] in JAX (clamped)",
-    # lax.scan's unroll is a schedule (how many steps one loop iteration runs), not a
-    # value; remat only changes what a backward pass recomputes, and metrics has none
     "jtus.rollout.x__check__mutmut_10": "check_finite=True left out: validate's default "
                                         "is True",
     # a custom_vjp backward may return None for an input's cotangent: JAX instantiates
@@ -149,6 +147,8 @@ EQUIVALENT: dict[str, str] = {
                                                    "instantiates zeros of their types",
     "jtus.rollout.x__segment_reverse__mutmut_108": "flags[1] for flags[0]: a zero of the "
                                                    "same shape and type",
+    # lax.scan's unroll is a schedule (how many steps one loop iteration runs), not a
+    # value; remat only changes what a backward pass recomputes, and metrics has none
     "jtus.rollout.x__body__mutmut_11": "checkpoint policy None (save nothing): what a "
                                        "backward recomputes, not a value",
     "jtus.rollout.x__body__mutmut_13": "checkpoint policy left out (None): the same",
