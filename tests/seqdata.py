@@ -45,6 +45,16 @@ def to_jax(tree):
     return jax.tree_util.tree_map(jnp.asarray, tree)
 
 
+def jau_positions(jitter, h, w, f):
+    """Where jitter-aligned up-sampling reads an ``h`` x ``w`` LR image for each HR pixel,
+    ``[N,f*h,f*w,2]`` (x, y) in LR pixel coordinates (pixel i's centre at i + 0.5): the
+    HR centre (X + 0.5) / f minus the jitter plus half a pixel (thesis sec. 4.1.1).
+    Jitter 0.5 gives plain up-sampling's positions."""
+    Y, X = np.mgrid[0:h * f, 0:w * f] + 0.5
+    jitter = np.asarray(jitter, np.float64)
+    return np.stack([X, Y], -1)[None] / f - jitter[:, None, None, :] + 0.5
+
+
 def jau_reference(color, jitter, f):
     """Jitter-aligned bilinear up-sampling of ``color [N,h,w,C]`` with ``jitter [N,2]``,
     written out in numpy (float64) for the tests: HR pixel centre q = (x + 0.5) / f in

@@ -162,19 +162,17 @@ def test_catmull_rom_upsampling_reproduces_quadratics(x64, factor):
     q = lambda X, Y: 0.3 + 0.2 * X - 0.1 * Y + 0.05 * X * X - 0.03 * X * Y + 0.02 * Y * Y  # noqa: E731
     Yl, Xl = np.mgrid[0:h, 0:w] + 0.5                       # LR pixel centres
     x = jnp.asarray(np.broadcast_to(q(Xl, Yl)[None, :, :, None], (b, h, w, 1)))
-    jit = np.array([[0.5, 0.5], [0.2, 0.7]])
-    Y, X = np.mgrid[0:h * factor, 0:w * factor] + 0.5
-    for name, pos in (("upsample", np.stack([X, Y], -1)[None] / factor + 0 * jit[:, None, None]),
-                      ("jau", np.stack([X, Y], -1)[None] / factor - jit[:, None, None] + 0.5)):
+    jit = jnp.asarray([[0.5, 0.5], [0.2, 0.7]])
+    for name, j, up in (
+            ("upsample", np.full((b, 2), 0.5),
+             lambda a: sampling.upsample(x, factor, method="bicubic", a=a)),
+            ("jau", jit, lambda a: sampling.jitter_aligned_upsample(x, jit, factor,
+                                                                    method="bicubic", a=a))):
+        pos = seqdata.jau_positions(j, h, w, factor)
         inner = np.all((pos >= 2) & (pos <= np.array([w, h]) - 2), -1)   # taps inside
         assert inner.sum() > 20
         for a, exact in ((-0.5, True), (-0.75, False)):
-            if name == "upsample":
-                out = sampling.upsample(x, factor, method="bicubic", a=a)
-            else:
-                out = sampling.jitter_aligned_upsample(x, jnp.asarray(jit), factor,
-                                                       method="bicubic", a=a)
-            err = np.abs(np.asarray(out)[..., 0] - q(pos[..., 0], pos[..., 1]))[inner]
+            err = np.abs(np.asarray(up(a))[..., 0] - q(pos[..., 0], pos[..., 1]))[inner]
             if exact:
                 assert err.max() < 1.2e-14, (name, err.max())  # measured: up to 5.8e-15
             else:

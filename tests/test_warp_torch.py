@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from jtus import sampling
-from tests import torch_ref
+from tests import seqdata, torch_ref
 
 
 def _grids(rng, b, h, w, ho, wo, dtype):
@@ -82,9 +82,7 @@ def test_jau_non_bilinear_methods_equal_grid_sample_float64(x64, rng, method, mo
     ours = np.asarray(sampling.jitter_aligned_upsample(jnp.asarray(x), jnp.asarray(jit),
                                                        factor, method=method))
     assert ours.dtype == np.float64
-    Y, X = np.mgrid[0:h * factor, 0:w * factor] + 0.5
-    pos = np.stack([X, Y], -1)[None] / factor - jit[:, None, None, :] + 0.5  # LR pixels
-    grid = 2 * pos / np.array([w, h]) - 1
+    grid = 2 * seqdata.jau_positions(jit, h, w, factor) / np.array([w, h]) - 1
     # nearest: a position exactly on a pixel edge rounds differently; none is here
     # (random jitter), and both then take the pixel containing the point
     np.testing.assert_allclose(ours, torch_ref.grid_sample(x, grid, mode), rtol=0, atol=1e-12)
