@@ -286,13 +286,17 @@ def test_window_loss_equals_the_loop_with_gradients(x64, mode, loss_frames, keep
         assert float(jnp.abs(g0[2]).max()) > 1e-6 and float(jnp.abs(g0[3]).max()) > 1e-6
 
 
-def test_reverse_backward_gives_the_frames_zero_cotangents_of_their_type(x64):
+@pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
+def test_reverse_backward_gives_the_frames_zero_cotangents_of_their_type(x64, dtype):
     """``remat="reverse"`` differentiates the parameters and the carry (above); the
     frames are data, and its backward hands them zero cotangents in their own types
-    (float64 here; autodiff's would be the frames' true gradients), the reset flags
-    float0 as autodiff does."""
+    (float64 or float32 with 64-bit types on; autodiff's would be the frames' true
+    gradients), the reset flags float0 as autodiff does. (A floating test that is
+    ``issubdtype(x, None)``, i.e. float64 only, passed the float64 case alone.)"""
     frames, targets = _frames(first=False)
-    c0 = _carry_in(frames, targets, True)
+    c0 = _carry_in(frames, targets, True)  # float64 state: the parameters are float64
+    frames = jax.tree_util.tree_map(
+        lambda x: x.astype(dtype) if jnp.issubdtype(x.dtype, jnp.floating) else x, frames)
 
     def back(mode):
         def f(c, fr):
@@ -306,7 +310,7 @@ def test_reverse_backward_gives_the_frames_zero_cotangents_of_their_type(x64):
     leaves_ad, leaves_rev = jax.tree_util.tree_leaves(f_ad), jax.tree_util.tree_leaves(f_rev)
     assert [(x.dtype, x.shape) for x in leaves_rev] == [(x.dtype, x.shape) for x in leaves_ad]
     assert jax.dtypes.float0 in [x.dtype for x in leaves_rev]            # the reset flags
-    assert jnp.float64 in [x.dtype for x in leaves_rev]
+    assert dtype in [x.dtype for x in leaves_rev]
     assert not any(np.any(np.asarray(x, bool)) for x in leaves_rev
                    if x.dtype != jax.dtypes.float0)
 
