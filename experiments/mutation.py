@@ -187,6 +187,12 @@ EQUIVALENT: dict[str, str] = {
                                                 "float0",
     "jtus.rollout.x__zero_cotangent__mutmut_11": "float64 zeros for the flag: JAX makes it "
                                                  "float0",
+    # grid_sample: the image size [w, h] as integers times a float grid is in the grid's
+    # float type in JAX (int64 * float32 -> float32), and small integers are exact
+    "jtus.sampling.warp.x_grid_sample__mutmut_13": "integer size times the float grid: the "
+                                                   "grid's type, exact values",
+    "jtus.sampling.warp.x_grid_sample__mutmut_15": "integer size times the float grid: the "
+                                                   "grid's type, exact values",
 }
 
 OUT = os.path.join(ROOT, "docs", "results", "mutation", "results.md")

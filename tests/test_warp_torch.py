@@ -42,6 +42,20 @@ def test_grid_sample_float64(x64, rng, method, mode):
     np.testing.assert_allclose(ours, ref, rtol=0, atol=1e-10)
 
 
+def test_grid_sample_defaults_and_keys_parameter(x64, rng):
+    """Called with the image and grid alone, ``grid_sample`` is torch's default
+    (bilinear, ``align_corners=False``); its ``a`` reaches the cubic kernel: bicubic with
+    a=-0.5 is Catmull-Rom, and differs from the default a=-0.75."""
+    img = jnp.asarray(rng.normal(size=(2, 13, 17, 3)))
+    grid = jnp.asarray(_grids(rng, 2, 13, 17, 11, 19, np.float64))
+    np.testing.assert_allclose(np.asarray(sampling.grid_sample(img, grid)),
+                               torch_ref.grid_sample(np.asarray(img), np.asarray(grid),
+                                                     "bilinear"), rtol=0, atol=1e-10)
+    cr = np.asarray(sampling.grid_sample(img, grid, "bicubic", a=-0.5))
+    np.testing.assert_array_equal(cr, sampling.grid_sample(img, grid, "catmull_rom"))
+    assert np.abs(cr - np.asarray(sampling.grid_sample(img, grid, "bicubic"))).max() > 1e-2
+
+
 @pytest.mark.parametrize("factor", [2, 4])
 def test_upsample_bilinear_matches_interpolate(rng, factor):
     x = rng.normal(size=(2, 9, 7, 2)).astype(np.float32)
