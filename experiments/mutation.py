@@ -193,6 +193,8 @@ EQUIVALENT: dict[str, str] = {
                                                    "grid's type, exact values",
     "jtus.sampling.warp.x_grid_sample__mutmut_15": "integer size times the float grid: the "
                                                    "grid's type, exact values",
+    "jtus.sampling.warp.x__bicubic5__mutmut_23": "i0[..., 2] of a size-2 axis is i0[..., 1] "
+                                                 "in JAX (clamped)",
 }
 
 OUT = os.path.join(ROOT, "docs", "results", "mutation", "results.md")
