@@ -195,6 +195,8 @@ EQUIVALENT: dict[str, str] = {
                                                    "grid's type, exact values",
     "jtus.sampling.warp.x__bicubic5__mutmut_23": "i0[..., 2] of a size-2 axis is i0[..., 1] "
                                                  "in JAX (clamped)",
+    "jtus.sampling.warp.x__bicubic5__mutmut_24": "t[..., 2] of a size-2 axis is t[..., 1] "
+                                                 "in JAX (clamped)",
 }
 
 OUT = os.path.join(ROOT, "docs", "results", "mutation", "results.md")
