@@ -13,7 +13,9 @@ runs reported and replaced:
 Every run is the ``diverse`` preset (randomized scenes, every jitter sequence, crop
 128, TBPTT windows of 8 over 16 frames, warm-up and cosine decay, clipping) with
 ``--epochs`` x ``--steps-per-epoch`` steps (the schedule scales to it), in
-``runs/ablation-<study>/<variant>-s<seed>/`` (resumed when it exists). A run whose
+``runs/ablation-<study>/<variant>-s<seed>/`` (resumed when it exists; a variant that
+trains the same network as one of an earlier study, DLCTUS as the recipe has it, reuses
+that run: ``run_dir``). A run whose
 network collapsed (``jtus.train.collapsed``: a gradient norm that stays at zero, or a
 validation loss that stops changing) stops training at that epoch, is reported, not
 averaged, and a run with the next unused seed takes its place, up to ``--max-extra``
@@ -59,6 +61,29 @@ def variants(study, thetas):
     raise ValueError(f"study: expected accumulation, warp or theta, got {study!r}")
 
 
+STUDIES = ("accumulation", "warp", "theta")
+
+
+def what_trains(cfg):
+    """A run's training with its model overrides resolved: two variants that set model
+    fields to values that are already the defaults train the same network."""
+    return dataclasses.replace(cfg, model_overrides=()), recipe.model_for(cfg).config
+
+
+def run_dir(study, label, changes, base, seed, thetas=()):
+    """The workdir of a variant's run: that of the first variant (studies in ``STUDIES``
+    order) that trains the same network with the same seed. DLCTUS as the recipe has it
+    is the "with buffer", the "bicubic" and the "L1" variant: it trains once, in
+    ``runs/ablation-accumulation/``, and the warp and θ studies read that run."""
+    key = what_trains(dataclasses.replace(base, seed=seed, **changes))
+    for s in STUDIES[:STUDIES.index(study) + 1]:
+        for lab, ch in variants(s, thetas):
+            if (s, lab) == (study, label) or \
+                    what_trains(dataclasses.replace(base, seed=seed, **ch)) == key:
+                return os.path.join(ROOT, "runs", f"ablation-{s}", f"{slug(lab)}-s{seed}")
+    raise ValueError(f"label: {label!r} is not a variant of the {study} study")
+
+
 def slug(label):
     return "".join(c if c.isalnum() else "_" for c in label).strip("_").lower()
 
@@ -79,7 +104,8 @@ def save_runs(study):
                   f"{os.path.relpath(saved_dir(work), ROOT)}")
 
 
-def run_variant(study, label, changes, base, seeds, max_extra, max_videos, progress):
+def run_variant(study, label, changes, base, seeds, max_extra, max_videos, progress,
+                thetas=()):
     """Train ``len(seeds)`` networks that did not collapse (taking further seeds for
     collapsed ones). Returns ``(records of trained runs, records of collapsed runs)``."""
     trained, failed = [], []
@@ -87,7 +113,7 @@ def run_variant(study, label, changes, base, seeds, max_extra, max_videos, progr
     while queue:
         seed = queue.pop(0)
         cfg = dataclasses.replace(base, seed=seed, **changes)
-        work = os.path.join(ROOT, "runs", f"ablation-{study}", f"{slug(label)}-s{seed}")
+        work = run_dir(study, label, changes, base, seed, thetas)
         if not os.path.exists(os.path.join(work, SAVED[0])) and \
                 copy_run(saved_dir(work), work):
             print(f"resuming {os.path.relpath(work, ROOT)} from its saved checkpoint",
@@ -141,7 +167,8 @@ def main(argv=None):
     rows, data = [], {"trained": [], "collapsed": []}
     for label, changes in variants(args.study, args.thetas):
         trained, failed = run_variant(args.study, label, changes, base, args.seeds,
-                                      args.max_extra, args.max_videos, sys.stderr.isatty())
+                                      args.max_extra, args.max_videos, sys.stderr.isatty(),
+                                      args.thetas)
         data["trained"] += trained
         data["collapsed"] += failed
         cells = []

@@ -292,6 +292,18 @@ def test_ablation_studies_build_valid_models():
         assert len({ablations.slug(label) for label, _ in vs}) == len(vs)
     with pytest.raises(ValueError, match="study"):
         ablations.variants("nope", [])
+    # DLCTUS as the recipe has it is a variant of all three studies: it trains once,
+    # under the accumulation study; the other variants train in their own study
+    base = PRESETS["diverse"]
+    shared = os.path.join(ablations.ROOT, "runs", "ablation-accumulation", "with_buffer-s3")
+    for study, expected in (("accumulation", [shared, "without_buffer-s3"]),
+                            ("warp", [shared, "bilinear-s3"]),
+                            ("theta", [shared, "l_st_linear_θ_0_2-s3", "l_st_linear_θ_0_8-s3"])):
+        dirs = [ablations.run_dir(study, label, ch, base, 3, [0.2, 0.8])
+                for label, ch in ablations.variants(study, [0.2, 0.8])]
+        assert dirs[0] == shared
+        assert [os.path.relpath(d, os.path.join(ablations.ROOT, "runs", f"ablation-{study}"))
+                for d in dirs[1:]] == expected[1:]
     # a run's checkpoint goes to experiments/checkpoints/ablation-<study>/<run>/ and back
     work = os.path.join(ablations.ROOT, "runs", "ablation-warp", "bilinear-s4")
     assert os.path.relpath(ablations.saved_dir(work), ablations.ROOT) == os.path.join(
