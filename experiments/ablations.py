@@ -32,7 +32,9 @@ commit) and exits; a run whose workdir holds no checkpoint starts from that copy
 from __future__ import annotations
 
 import argparse
+import csv
 import dataclasses
+import json
 import os
 import sys
 
@@ -102,6 +104,35 @@ def save_runs(study):
         if copy_run(work, saved_dir(work)):
             print(f"saved {os.path.relpath(work, ROOT)} -> "
                   f"{os.path.relpath(saved_dir(work), ROOT)}")
+
+
+def progress(study):
+    """Markdown lines on a study's runs before its results exist: each committed run's
+    epochs, last validation PSNR and whether it collapsed (``train.collapsed``)."""
+    root = os.path.join(ROOT, "experiments", "checkpoints", f"ablation-{study}")
+    runs = sorted(os.listdir(root)) if os.path.isdir(root) else []
+    if not runs:
+        return []
+    rows = []
+    for run in runs:
+        with open(os.path.join(root, run, "config.json")) as fh:
+            epochs = json.load(fh)["epochs"]
+        with open(os.path.join(root, run, "metrics.csv")) as fh:
+            hist = [{k: int(v) if k in ("epoch", "step") else float(v) for k, v in r.items()}
+                    for r in csv.DictReader(fh)]
+        why = train.collapsed(hist)
+        done = len(hist) >= epochs
+        status = f"collapsed ({why})" if why else "trained" if done else "in training"
+        psnr = f"{hist[-1]['val_psnr']:.2f}" if hist else "-"
+        rows.append(f"| {run} | {len(hist)} of {epochs} | {psnr} | {status} |")
+    shared = "" if study == "accumulation" else (
+        " The first variant trains the same network as the accumulation study's \"with "
+        "buffer\" runs and reads those (`run_dir`).")
+    return [f"In progress: the runs so far (committed in "
+            f"`experiments/checkpoints/ablation-{study}/`; `python experiments/ablations.py "
+            f"--study {study}` resumes them and writes the table when all are done).{shared}",
+            "", "| run | epochs | last validation PSNR (dB) | status |",
+            "| --- | --- | --- | --- |", *rows]
 
 
 def run_variant(study, label, changes, base, seeds, max_extra, max_videos, progress,

@@ -16,6 +16,7 @@ import os
 import subprocess
 import sys
 
+from ablations import progress as ablation_progress
 from common import RESULTS, ROOT  # noqa: E402
 
 SECTIONS = [
@@ -96,6 +97,8 @@ def main(argv=None):
                 parts += ["", f"![{name}](results/{name}/{img})"]
             if name in NOTES:
                 parts += ["", NOTES[name]]
+        elif name.startswith("ablation-") and ablation_progress(name.split("-", 1)[1]):
+            parts += ablation_progress(name.split("-", 1)[1])
         else:
             parts.append(f"Not run yet: see `experiments/` (`{name}`).")
         parts.append("")
