@@ -197,6 +197,20 @@ EQUIVALENT: dict[str, str] = {
                                                  "in JAX (clamped)",
     "jtus.sampling.warp.x__bicubic5__mutmut_24": "t[..., 2] of a size-2 axis is t[..., 1] "
                                                  "in JAX (clamped)",
+    "jtus.sampling.warp.x__bicubic9__mutmut_23": "i0[..., 2] of a size-2 axis is i0[..., 1] "
+                                                 "in JAX (clamped)",
+    "jtus.sampling.warp.x__bicubic9__mutmut_24": "t[..., 2] of a size-2 axis is t[..., 1] "
+                                                 "in JAX (clamped)",
+    # pixel_grid: jnp.arange(n) + 0.5 without a dtype is a weakly typed float, which the
+    # stack with the other axis (typed) turns into that type; half-integers are exact
+    "jtus.sampling.warp.x_pixel_grid__mutmut_4": "one axis's arange untyped: a weakly "
+                                                 "typed float that takes the other's type",
+    "jtus.sampling.warp.x_pixel_grid__mutmut_6": "one axis's arange untyped: a weakly "
+                                                 "typed float that takes the other's type",
+    "jtus.sampling.warp.x_pixel_grid__mutmut_11": "one axis's arange untyped: a weakly "
+                                                 "typed float that takes the other's type",
+    "jtus.sampling.warp.x_pixel_grid__mutmut_13": "one axis's arange untyped: a weakly "
+                                                 "typed float that takes the other's type",
 }
 
 OUT = os.path.join(ROOT, "docs", "results", "mutation", "results.md")

@@ -269,3 +269,14 @@ def test_float32_warps_are_the_same_with_64_bit_types_on(rng):
     for m, x, y in zip(sampling.METHODS, on, off):
         assert x.dtype == jnp.float32, m
         np.testing.assert_array_equal(x, y, err_msg=m)
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_pixel_grid_centres_in_the_asked_type(x64, dtype):
+    """``pixel_grid`` is the pixel centres (x, y) = (j + 0.5, i + 0.5) in the type asked
+    for, float32 too with 64-bit types on (as the float32 warps read it)."""
+    g = sampling.pixel_grid(2, 3, 4, dtype)
+    assert g.dtype == dtype and g.shape == (2, 3, 4, 2)
+    i, j = np.mgrid[0:3, 0:4]
+    np.testing.assert_array_equal(g, np.broadcast_to(np.stack([j + 0.5, i + 0.5], -1),
+                                                     (2, 3, 4, 2)))
