@@ -201,6 +201,12 @@ EQUIVALENT: dict[str, str] = {
                                                  "in JAX (clamped)",
     "jtus.sampling.warp.x__bicubic9__mutmut_24": "t[..., 2] of a size-2 axis is t[..., 1] "
                                                  "in JAX (clamped)",
+    # _bilinear_at is handed x and y as [..., 1]: index 1 of that axis is index 0
+    "jtus.sampling.warp.x__bilinear_at__mutmut_15": "iy[..., 1] of a size-1 axis is iy[..., 0] "
+                                                    "in JAX (clamped)",
+    "jtus.sampling.warp.x__bilinear_at__mutmut_16": "ix[..., 1] of a size-1 axis is ix[..., 0] "
+                                                    "in JAX (clamped)",
+    "jtus.sampling.warp.x_pixel_grid__mutmut_25": "meshgrid's indexing defaults to 'xy'",
     # pixel_grid: jnp.arange(n) + 0.5 without a dtype is a weakly typed float, which the
     # stack with the other axis (typed) turns into that type; half-integers are exact
     "jtus.sampling.warp.x_pixel_grid__mutmut_4": "one axis's arange untyped: a weakly "
