@@ -201,6 +201,10 @@ EQUIVALENT: dict[str, str] = {
                                                  "in JAX (clamped)",
     "jtus.sampling.warp.x__bicubic9__mutmut_24": "t[..., 2] of a size-2 axis is t[..., 1] "
                                                  "in JAX (clamped)",
+    # every caller casts _split's fraction to the image's type; u - floor(u) is exact,
+    # and float32 -> float64 -> float32 gives it back
+    "jtus.sampling.warp.x__split__mutmut_7": "the fraction in float64 before every caller's "
+                                             "cast back: exact",
     # _bilinear_at is handed x and y as [..., 1]: index 1 of that axis is index 0
     "jtus.sampling.warp.x__bilinear_at__mutmut_15": "iy[..., 1] of a size-1 axis is iy[..., 0] "
                                                     "in JAX (clamped)",

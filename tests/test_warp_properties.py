@@ -280,3 +280,19 @@ def test_pixel_grid_centres_in_the_asked_type(x64, dtype):
     i, j = np.mgrid[0:3, 0:4]
     np.testing.assert_array_equal(g, np.broadcast_to(np.stack([j + 0.5, i + 0.5], -1),
                                                      (2, 3, 4, 2)))
+
+
+def test_warp_read_checks_its_method_and_plan(rng):
+    """``warp_read`` reads bilinearly by default (the plan's default), as ``sample``; a
+    method it does not know, or a plan made for a method of the other kind (per-axis
+    taps against bilinear fetches), is an error naming the argument."""
+    img = jnp.asarray(rng.normal(size=(1, 5, 6, 2)), jnp.float32)
+    xy = jnp.asarray(rng.uniform(0, 6, size=(1, 3, 4, 2)), jnp.float32)
+    np.testing.assert_array_equal(sampling.warp_read(img, sampling.warp_plan(xy, 5, 6)),
+                                  sampling.sample(img, xy))
+    with pytest.raises(ValueError, match="method: expected one of"):
+        sampling.warp_read(img, sampling.warp_plan(xy, 5, 6), "lanczos")
+    with pytest.raises(ValueError, match="p: a WarpPlan made for another method"):
+        sampling.warp_read(img, sampling.warp_plan(xy, 5, 6, "bicubic9"), "bicubic")
+    with pytest.raises(ValueError, match="p: a WarpPlan made for another method"):
+        sampling.warp_read(img, sampling.warp_plan(xy, 5, 6), "bicubic5")

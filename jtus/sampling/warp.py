@@ -206,6 +206,11 @@ def warp_plan(xy, height, width, method="bilinear", a=PYTORCH_A,
 def warp_read(image, p: WarpPlan, method="bilinear", a=PYTORCH_A):
     """Read ``image [B,H,W,C]`` through ``p`` (made by ``warp_plan`` for this image's size
     and dtype, with the same ``method`` and ``a``) -> ``[B,Ho,Wo,C]``."""
+    if method not in METHODS:
+        raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
+    if (p.xy is None) != (method not in ("bicubic9", "bicubic5")):
+        raise ValueError(f"p: a WarpPlan made for another method than {method!r} (made with "
+                         f"{'bicubic9 or bicubic5' if p.xy is not None else 'a separable one'})")
     if method == "bicubic9":
         return _bicubic9(image, p.xy, a)
     if method == "bicubic5":
