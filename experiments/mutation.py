@@ -205,6 +205,8 @@ EQUIVALENT: dict[str, str] = {
     # and float32 -> float64 -> float32 gives it back
     "jtus.sampling.warp.x__split__mutmut_7": "the fraction in float64 before every caller's "
                                              "cast back: exact",
+    "jtus.sampling.warp.x_inside_mask__mutmut_5": "xy[..., 1:3] of a size-2 axis is "
+                                                  "xy[..., 1:2]",
     # _bilinear_at is handed x and y as [..., 1]: index 1 of that axis is index 0
     "jtus.sampling.warp.x__bilinear_at__mutmut_15": "iy[..., 1] of a size-1 axis is iy[..., 0] "
                                                     "in JAX (clamped)",

@@ -140,6 +140,7 @@ def test_nearest_picks_containing_pixel():
 def test_inside_mask():
     xy = jnp.asarray([[[[0.0, 0.0], [4.0, 3.0], [-0.01, 1.0], [2.0, 3.01]]]])
     _, mask = sampling.sample(jnp.zeros((1, 3, 4, 1)), xy, "bilinear", return_mask=True)
+    assert mask.shape == (1, 1, 4, 1) and mask.dtype == bool
     np.testing.assert_array_equal(np.asarray(mask)[0, 0, :, 0], [True, True, False, False])
 
 
