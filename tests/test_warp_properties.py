@@ -150,8 +150,11 @@ def test_bad_input_errors():
         sampling.sample(img, jnp.zeros((1, 2, 2, 2)), "lanczos")
     with pytest.raises(ValueError, match="xy"):
         sampling.sample(img, jnp.zeros((1, 2, 2, 3)))
-    with pytest.raises(ValueError, match="image"):
+    with pytest.raises(ValueError, match=r"image: expected \[B,H,W,C\], got shape \(4, 4, 3\)"):
         sampling.sample(jnp.zeros((4, 4, 3)), jnp.zeros((1, 2, 2, 2)))
+    with pytest.raises(ValueError, match=r"xy: expected \[B,Ho,Wo,2\] with B=2, got shape "
+                                         r"\(1, 2, 2, 2\)"):
+        sampling.sample(jnp.zeros((2, 4, 5, 3)), jnp.zeros((1, 2, 2, 2)))
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
