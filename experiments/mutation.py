@@ -207,6 +207,19 @@ EQUIVALENT: dict[str, str] = {
                                              "cast back: exact",
     "jtus.sampling.warp.x_inside_mask__mutmut_5": "xy[..., 1:3] of a size-2 axis is "
                                                   "xy[..., 1:2]",
+    # warp_plan's cast of integer coordinates: jnp.clip against the float bound already
+    # makes them floating, and integer coordinates (fractions 0 or 1/2) are exact in any
+    # float type; float32 coordinates widened later give the same fractions (|xy| < 2**22)
+    "jtus.sampling.warp.x_warp_plan__mutmut_7": "the integer-coordinate cast: exact in "
+                                                 "any float type",
+    "jtus.sampling.warp.x_warp_plan__mutmut_11": "the integer-coordinate cast: exact in "
+                                                 "any float type",
+    "jtus.sampling.warp.x_warp_plan__mutmut_12": "the integer-coordinate cast: exact in "
+                                                 "any float type",
+    "jtus.sampling.warp.x_warp_plan__mutmut_13": "the integer-coordinate cast: exact in "
+                                                 "any float type",
+    "jtus.sampling.warp.x_warp_plan__mutmut_14": "the integer-coordinate cast: exact in "
+                                                 "any float type",
     # _bilinear_at is handed x and y as [..., 1]: index 1 of that axis is index 0
     "jtus.sampling.warp.x__bilinear_at__mutmut_15": "iy[..., 1] of a size-1 axis is iy[..., 0] "
                                                     "in JAX (clamped)",
