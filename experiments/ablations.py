@@ -106,7 +106,7 @@ def save_runs(study):
                   f"{os.path.relpath(saved_dir(work), ROOT)}")
 
 
-def progress(study):
+def runs_so_far(study):
     """Markdown lines on a study's runs before its results exist: each committed run's
     epochs, last validation PSNR and whether it collapsed (``train.collapsed``)."""
     root = os.path.join(ROOT, "experiments", "checkpoints", f"ablation-{study}")

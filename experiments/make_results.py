@@ -16,7 +16,7 @@ import os
 import subprocess
 import sys
 
-from ablations import progress as ablation_progress
+from ablations import runs_so_far as ablation_progress
 from common import RESULTS, ROOT  # noqa: E402
 
 SECTIONS = [
