@@ -220,6 +220,8 @@ EQUIVALENT: dict[str, str] = {
                                                  "any float type",
     "jtus.sampling.warp.x_warp_plan__mutmut_14": "the integer-coordinate cast: exact in "
                                                  "any float type",
+    "jtus.sampling.warp.x_warp_plan__mutmut_6": "issubdtype(None, floating): never cast; the "
+                                                "clip makes integer coordinates floating",
     # _bilinear_at is handed x and y as [..., 1]: index 1 of that axis is index 0
     "jtus.sampling.warp.x__bilinear_at__mutmut_15": "iy[..., 1] of a size-1 axis is iy[..., 0] "
                                                     "in JAX (clamped)",

@@ -319,3 +319,12 @@ def test_float64_coordinates_keep_their_precision_on_a_float32_image(x64, method
     assert got.dtype == jnp.float32
     ref = np.asarray(sampling.sample(jnp.asarray(img), xy, method))
     np.testing.assert_allclose(np.asarray(got), ref, rtol=0, atol=1.5e-6)
+
+
+@pytest.mark.parametrize("method", sampling.METHODS)
+def test_a_nan_coordinate_spoils_only_its_own_read(method):
+    """A NaN coordinate gives NaN at its own output pixel and nowhere else."""
+    img = jnp.arange(16.0).reshape(1, 4, 4, 1)
+    xy = jnp.array([[[[1.5, 1.5], [jnp.nan, 2.0], [2.5, 0.5]]]])
+    out = np.asarray(sampling.sample(img, xy, method))[0, 0, :, 0]
+    np.testing.assert_array_equal(np.isnan(out), [False, True, False])
