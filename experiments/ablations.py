@@ -32,7 +32,6 @@ commit) and exits; a run whose workdir holds no checkpoint starts from that copy
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import json
 import os
@@ -117,9 +116,8 @@ def runs_so_far(study):
     for run in runs:
         with open(os.path.join(root, run, "config.json")) as fh:
             epochs = json.load(fh)["epochs"]
-        with open(os.path.join(root, run, "metrics.csv")) as fh:
-            hist = [{k: int(v) if k in ("epoch", "step") else float(v) for k, v in r.items()}
-                    for r in csv.DictReader(fh)]
+        with open(os.path.join(root, run, "metrics.json")) as fh:  # the history train resumes
+            hist = json.load(fh)
         why = train.collapsed(hist)
         done = len(hist) >= epochs
         status = f"collapsed ({why})" if why else "trained" if done else "in training"

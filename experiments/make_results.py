@@ -16,7 +16,7 @@ import os
 import subprocess
 import sys
 
-from ablations import runs_so_far as ablation_progress
+from ablations import runs_so_far
 from common import RESULTS, ROOT  # noqa: E402
 
 SECTIONS = [
@@ -97,10 +97,9 @@ def main(argv=None):
                 parts += ["", f"![{name}](results/{name}/{img})"]
             if name in NOTES:
                 parts += ["", NOTES[name]]
-        elif name.startswith("ablation-") and ablation_progress(name.split("-", 1)[1]):
-            parts += ablation_progress(name.split("-", 1)[1])
         else:
-            parts.append(f"Not run yet: see `experiments/` (`{name}`).")
+            so_far = runs_so_far(name.split("-", 1)[1]) if name.startswith("ablation-") else []
+            parts += so_far or [f"Not run yet: see `experiments/` (`{name}`)."]
         parts.append("")
     with open(os.path.join(ROOT, "docs", "results.md"), "w") as fh:
         fh.write("\n".join(parts))

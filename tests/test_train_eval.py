@@ -316,14 +316,15 @@ def test_ablation_progress_reads_the_committed_runs(tmp_path, monkeypatch):
     ablations = _load_ablations()
     monkeypatch.setattr(ablations, "ROOT", str(tmp_path))
     assert ablations.runs_so_far("warp") == []
-    head = "epoch,step,train_loss,grad_norm,grad_norm_max,param_norm,val_loss,val_psnr\n"
-    for run, lines in (("with_buffer-s0", ["1,4,0.1,0.5,0.9,3,0.2,24.5",
-                                           "2,8,0.1,0.4,0.8,3,0.19,25.25"]),
-                       ("with_buffer-s1", ["1,4,0.1,0.0,0.0,3,0.3,20.0"])):
+    keys = ("epoch", "step", "train_loss", "grad_norm", "grad_norm_max", "param_norm",
+            "val_loss", "val_psnr")
+    for run, rows in (("with_buffer-s0", [(1, 4, 0.1, 0.5, 0.9, 3, 0.2, 24.5),
+                                          (2, 8, 0.1, 0.4, 0.8, 3, 0.19, 25.25)]),
+                      ("with_buffer-s1", [(1, 4, 0.1, 0.0, 0.0, 3, 0.3, 20.0)])):
         d = tmp_path / "experiments" / "checkpoints" / "ablation-accumulation" / run
         d.mkdir(parents=True)
         (d / "config.json").write_text('{"epochs": 10}')
-        (d / "metrics.csv").write_text(head + "\n".join(lines) + "\n")
+        (d / "metrics.json").write_text(json.dumps([dict(zip(keys, r)) for r in rows]))
     text = "\n".join(ablations.runs_so_far("accumulation"))
     assert "| with_buffer-s0 | 2 of 10 | 25.25 | in training |" in text
     assert "| with_buffer-s1 | 1 of 10 | 20.00 | collapsed (the gradient norm stayed" in text
