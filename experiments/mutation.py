@@ -238,10 +238,12 @@ EQUIVALENT: dict[str, str] = {
                                                  "typed float that takes the other's type",
     "jtus.sampling.warp.x_pixel_grid__mutmut_13": "one axis's arange untyped: a weakly "
                                                  "typed float that takes the other's type",
-    # the nearest and separable plans index the [..., 2] corner (x, y): index 2 is index 1
+    # the nearest, bilinear and 16-tap plans index the [..., 2] corner (x, y): 2 is 1
     "jtus.sampling.warp.x_warp_plan__mutmut_77": "i0[..., 2] of a size-2 axis is i0[..., 1] "
                                                  "in JAX (clamped)",
     "jtus.sampling.warp.x_warp_plan__mutmut_102": "i0[..., 2] of a size-2 axis is i0[..., 1] "
+                                                  "in JAX (clamped)",
+    "jtus.sampling.warp.x_warp_plan__mutmut_138": "i0[..., 2] of a size-2 axis is i0[..., 1] "
                                                   "in JAX (clamped)",
 }
 
