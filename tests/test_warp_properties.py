@@ -334,3 +334,22 @@ def test_a_nan_coordinate_spoils_only_its_own_read(method):
     xy = jnp.array([[[[1.5, 1.5], [jnp.nan, 2.0], [2.5, 0.5]]]])
     out = np.asarray(sampling.sample(img, xy, method))[0, 0, :, 0]
     np.testing.assert_array_equal(np.isnan(out), [False, True, False])
+
+
+@pytest.mark.parametrize("wide", [False, True])
+def test_an_image_is_read_in_its_own_float_type_and_integers_as_float32(wide):
+    """``sample`` reads a floating image in its own type (a half-precision history stays
+    half) and an integer image (8-bit colour) as float32, with 64-bit types on or off:
+    the values are those of the float32 image's read."""
+    with jax.enable_x64(wide):
+        rng = np.random.default_rng(3)
+        img = rng.integers(0, 256, size=(1, 5, 6, 3)).astype(np.uint8)
+        xy = jnp.asarray(rng.uniform(0, 6, size=(1, 4, 4, 2)), jnp.float32)
+        for method in ("nearest", "bilinear", "bicubic"):
+            got = sampling.sample(jnp.asarray(img), xy, method)
+            assert got.dtype == jnp.float32, method
+            np.testing.assert_array_equal(
+                np.asarray(got), np.asarray(sampling.sample(jnp.asarray(img, jnp.float32),
+                                                            xy, method)))
+            half = sampling.sample(jnp.asarray(img, jnp.float16), xy, method)
+            assert half.dtype == jnp.float16, method
