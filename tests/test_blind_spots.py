@@ -325,16 +325,18 @@ def _mlp_numpy(params, color, depth, f, gamma, slope, near, far, jitter=None, mo
 
 
 def test_mlp_forward_and_gamma_against_numpy():
-    """Catches: gamma ignored or applied as r^gamma, the mean not added back, sub-pixels
-    shuffled in another order, the jitter input dropped, swapped or not centred, the
+    """Catches: gamma ignored (or only 2.0 boosted) or applied as r^gamma, the leaky
+    ReLU's slope left at its default, the mean not added back, sub-pixels shuffled in
+    another order, the jitter input dropped, swapped or not centred, the
     de-jittering read on the wrong side or left out for depth."""
     from jtus.models import mlp
 
     frames, _ = seqdata.to_jax(seqdata.sequence(T=1, B=2, h=6, w=5))
     frame = _at(frames, 0)
     frame = frame._replace(jitter=jnp.asarray([[0.125, 0.875], [0.625, 0.25]], jnp.float32))
-    for gamma, jit in ((1.0, "dejitter"), (2.2, "dejitter"), (1.0, "input"), (1.0, "ignore")):
-        config = mlp.Config(factor=4, gamma=gamma, jitter=jit)
+    for gamma, jit, slope in ((1.0, "dejitter", 0.01), (2.2, "dejitter", 0.01),
+                              (2.0, "input", 0.2), (1.0, "ignore", 0.01)):
+        config = mlp.Config(factor=4, gamma=gamma, jitter=jit, slope=slope)
         params = mlp.init(jax.random.PRNGKey(1), config)
         got = np.asarray(mlp.step(params, (), frame, config)[0])
         want = _mlp_numpy(params, np.asarray(frame.color), np.asarray(frame.depth), 4, gamma,
@@ -342,6 +344,31 @@ def test_mlp_forward_and_gamma_against_numpy():
         np.testing.assert_allclose(got, want, rtol=0, atol=5e-7)  # float32: 2.1e-7 measured
     with pytest.raises(ValueError, match="jitter"):
         mlp.Config(jitter="centre")
+
+
+@pytest.mark.parametrize("jit", ["ignore", "input", "dejitter"])
+def test_mlp_computes_in_float32_whatever_the_frame_type(jit):
+    """The MLP computes in float32, like its parameters: a half-precision frame and a
+    float64 frame (64-bit types on) give exactly the output of the same values in
+    float32, as float32. Catches: colour, depth or jitter left in the frame's own type
+    (``astype(None)`` is float32 only while 64-bit types are off)."""
+    from jtus.models import mlp
+
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=1, B=2, h=6, w=5))
+    frame = _at(frames, 0)._replace(jitter=jnp.asarray([[0.0078125, 0.875], [0.625, 0.25]]))
+    config = mlp.Config(factor=4, jitter=jit)
+    params = mlp.init(jax.random.PRNGKey(1), config)
+    fields = ("color", "depth", "motion", "jitter")
+    cast = lambda fr, dt: fr._replace(**{k: jnp.asarray(getattr(fr, k), dt)  # noqa: E731
+                                         for k in fields})
+    for dtype in (jnp.float16, jnp.float64):
+        with jax.enable_x64(dtype == jnp.float64):
+            typed = cast(frame, dtype)
+            assert typed.color.dtype == dtype
+            want = mlp.step(params, (), cast(typed, jnp.float32), config)[0]
+            got = mlp.step(params, (), typed, config)[0]
+            assert got.dtype == jnp.float32, dtype
+            np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
 
 
 def test_nsrr_ycbcr_option_converts_at_both_ends():

@@ -415,8 +415,9 @@ def test_training_summary_takes_the_longer_log(tmp_path):
 
 def test_mutation_script_counts_mutants_and_sets_the_jit_mode(tmp_path, monkeypatch):
     """experiments/mutation.py: an equivalent mutant and an unchecked one are not in the
-    rate, a timeout is not a kill; the hook it appends to the scratch conftest runs only
-    mutmut's call-recording run op by op; results of separate runs merge."""
+    rate, a timeout is not a kill (except a listed mutant that breaks the import); the
+    hook it appends to the scratch conftest runs only mutmut's call-recording run op by
+    op; results of separate runs merge."""
     mu = _load_experiment("mutation")
     equivalent = next(iter(mu.EQUIVALENT))
     status = {"m.x_a__mutmut_1": "killed", "m.x_a__mutmut_2": "survived",
@@ -427,6 +428,13 @@ def test_mutation_script_counts_mutants_and_sets_the_jit_mode(tmp_path, monkeypa
     # the results list a timed-out mutant with the survivors, marked as such
     assert mu.row("m.py", status, None)[-1] == ["m.x_a__mutmut_2",
                                                 "m.x_a__mutmut_3 (timed out)"]
+    # a mutant that breaks the module's import exits before any test (mutmut: timeout):
+    # a kill only when it is listed in BREAKS_IMPORT, and only for that exit
+    breaks = next(iter(mu.BREAKS_IMPORT))
+    _, _, run, killed, *_ = mu.row("m.py", {**status, breaks: "timeout"}, None)
+    assert (run, killed) == (4, 2)
+    _, _, run, killed, *_, survivors = mu.row("m.py", {**status, breaks: "survived"}, None)
+    assert (run, killed) == (4, 1) and breaks in survivors
     conftest = open(os.path.join(os.path.dirname(__file__), "conftest.py")).read()
     assert "\nimport jax\n" in conftest and "\nimport os\n" in conftest  # the hook's names
     ns = {"jax": jax, "os": os}
