@@ -112,12 +112,15 @@ def test_gaussian_filter_and_max_beta():
 
 
 def test_thesis_presets_and_registry():
+    """The thesis's TUS (sec. 5.3.1): α 0.5 at 2x and 1.0 at 4x, clamping, bicubic
+    reprojection, no dilation; every registered model is built at the factor asked."""
     assert tus.thesis(2).alpha == 0.5 and tus.thesis(4).alpha == 1.0
     assert tus.thesis(4).rectify == "clamp" and tus.thesis(4).warp == "bicubic"
     assert not tus.thesis(4).dilation
-    for name in models.NAMES:
-        m = models.build(name, 4)
-        assert m.config.factor == 4
+    for f in (2, 4):
+        assert tus.thesis(f).factor == f
+        for name in models.NAMES:
+            assert models.build(name, f).config.factor == f, (name, f)
     with pytest.raises(ValueError, match="model"):
         models.build("nerf", 4)
     with pytest.raises(ValueError, match="rectify"):

@@ -136,6 +136,12 @@ def test_tus_gaussian_filter_and_max_beta_follow_eq_38_41_42():
     assert _tus_golden("gaussian", "max") > 50
 
 
+def test_tus_tent_filter_and_max_beta_follow_eq_38_40_42():
+    """Catches: the tent's β (its largest weight, eq. 42) taken at the wrong distance,
+    over the wrong axis, or saturated at 1."""
+    assert _tus_golden("tent", "max", f=4, jitter=(0.2, 0.85)) > 50
+
+
 def test_tus_tent_filter_and_box_beta_follow_eq_38_40():
     """Catches: β forced to 1, or the box β on the wrong pixel."""
     assert _tus_golden("tent", "box", f=4, jitter=(0.6, 0.1)) > 50
@@ -415,3 +421,32 @@ def test_tus_dilation_reprojects_with_the_dilated_motion():
     plain, _ = tus.step({}, state, frame, base)
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-6)
     assert float(jnp.abs(plain - want).max()) > 1e-3  # control
+
+
+@pytest.mark.parametrize("name", ["jau", "tus", "tus-mean", "kpn", "nsrr-fast", "dlctus"])
+def test_models_compute_in_float32_whatever_the_frame_type(name):
+    """Every model computes in float32, like its parameters: a float64 frame sequence
+    (64-bit types on) gives exactly the outputs and the state of the same values in
+    float32, as float32. Catches: a frame field cast with ``astype(None)``, which is
+    float32 only while 64-bit types are off (the state's type then changes inside the
+    scan, or the outputs come out in float64). Half-precision frames: the MLP's test
+    above, and ``test_losses.py`` for the losses."""
+    from jtus import models
+
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=2, B=1, h=6, w=5, reset_at=(1, 0)))
+    model = models.build(name, 4)
+    params = model.init(jax.random.PRNGKey(0))
+    fields = ("color", "depth", "motion", "jitter")
+    cast = lambda fr, dt: fr._replace(**{k: jnp.asarray(getattr(fr, k), dt)  # noqa: E731
+                                         for k in fields})
+    with jax.enable_x64(True):
+        runs = []
+        for fr in (cast(frames, jnp.float64), frames):
+            assert fr.color.dtype == (jnp.float64 if not runs else jnp.float32)
+            runs.append(rollout.outputs(model.step, params, model.init_state(_first(fr)), fr))
+        (got, got_state), (want, want_state) = runs
+        for g, w in zip(jax.tree_util.tree_leaves((got, got_state)),
+                        jax.tree_util.tree_leaves((want, want_state))):
+            assert g.dtype == w.dtype, (g.dtype, w.dtype)
+            np.testing.assert_array_equal(np.asarray(g), np.asarray(w))
+        assert got.dtype == jnp.float32

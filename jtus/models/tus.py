@@ -100,14 +100,14 @@ def _jau_coords(frame, f):
     return xy - frame.jitter.astype(jnp.float32)[:, None, None, :] + 0.5
 
 
-def _scaled_input(config, frame, color, xy):
+def _scaled_input(config, color, xy):
     """(s [B,H,W,3], β_max [B,H,W,1]) per eq. 38 and 42."""
     f = config.factor
     if config.filter == "tent":
         s = sampling.sample(color, xy, "bilinear")
         u = xy - 0.5  # sample j sits at u = j
-        d = u - jnp.round(u)
-        beta = jnp.prod(jnp.clip(1 - jnp.abs(d), 0, 1), -1, keepdims=True)
+        d = u - jnp.round(u)  # to the nearest sample: |d| <= 1/2, so the tent is 1 - |d|
+        beta = jnp.prod(1 - jnp.abs(d), -1, keepdims=True)
         return s, beta
     u = xy - 0.5
     n = jnp.floor(u + 0.5)
@@ -165,7 +165,7 @@ def _rectify(config, hist, color, xy):
     return back(mean + t * v)
 
 
-def _fresh(s, config):
+def _fresh(s):
     """A reset history: the scaled input with N = 0. The step then counts the
     current frame (N = 1, or β when counting samples), so with α = 1/N every frame
     weighs the same, as the thesis's sec. 2.4.5 says of α = 1/N (an average over all
@@ -175,8 +175,8 @@ def _fresh(s, config):
 
 def init_state(frame: Frame, config: Config = Config()) -> State:
     color = frame.color.astype(jnp.float32)
-    s, _ = _scaled_input(config, frame, color, _jau_coords(frame, config.factor))
-    return State(_fresh(s, config))
+    s, _ = _scaled_input(config, color, _jau_coords(frame, config.factor))
+    return State(_fresh(s))
 
 
 def step(params, state: State, frame: Frame, config: Config = Config()):
@@ -185,8 +185,8 @@ def step(params, state: State, frame: Frame, config: Config = Config()):
     depth = frame.depth.astype(jnp.float32)
     motion = frame.motion.astype(jnp.float32)
     xy = _jau_coords(frame, f)
-    s, beta_max = _scaled_input(config, frame, color, xy)
-    fresh = _fresh(s, config)
+    s, beta_max = _scaled_input(config, color, xy)
+    fresh = _fresh(s)
     history = state.history
     mv = sampling.dilate_motion(motion, depth) if config.dilation else motion
     pos = sampling.reproject_coords(mv, f)
