@@ -450,3 +450,39 @@ def test_models_compute_in_float32_whatever_the_frame_type(name):
             assert g.dtype == w.dtype, (g.dtype, w.dtype)
             np.testing.assert_array_equal(np.asarray(g), np.asarray(w))
         assert got.dtype == jnp.float32
+
+
+def test_tus_reads_its_history_with_its_own_warp():
+    """TUS reads its history's colour and its count N with the warp it is configured
+    with (method and Keys parameter), where the motion lands inside the previous frame,
+    and the scaled input (N = 0) outside it; with β = 1 and α = max(1/N, α₀) the output
+    is α s + (1 - α) h and N grows by one (eq. 39). The reference composes jtus's warp
+    (checked against PyTorch's ``grid_sample``) and its up-sampling. Catches: either
+    read falling back to ``sample``'s default method or Keys parameter."""
+    from jtus.models import tus
+
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=2, B=1, h=6, w=5, max_motion=1.5))
+    frame = _at(frames, 1)
+    f = 4
+    rng = np.random.default_rng(11)
+    hist = rng.uniform(size=(1, 6 * f, 5 * f, 4)).astype(np.float32)
+    hist[..., 3] = rng.uniform(1.0, 6.0, size=hist.shape[:3])  # N, read by its own warp
+    pos = sampling.reproject_coords(frame.motion, f)
+    s = sampling.jitter_aligned_upsample(frame.color, frame.jitter, f)  # the tent, eq. 40
+    outs = {}
+    for warp, a in (("bicubic", -0.75), ("bicubic", -0.5), ("bilinear", -0.75)):
+        config = tus.Config(factor=f, warp=warp, warp_a=a, rectify="none", beta="one",
+                            inverse_count=True, alpha=0.01)
+        out, state = tus.make(config).step({}, tus.State(jnp.asarray(hist)), frame)
+        rep, inside = sampling.sample(jnp.asarray(hist), pos, warp, a=a, return_mask=True)
+        h = jnp.where(inside, rep[..., :3], s)
+        n = jnp.where(inside, rep[..., 3:], 0.0) + 1.0
+        alpha = jnp.clip(1.0 / n, 0.01, 1.0)
+        # float32; 0 measured for both (the same ops in another order could round)
+        np.testing.assert_allclose(state.history[..., 3:], n, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(out, alpha * s + (1 - alpha) * h, rtol=0, atol=1e-6)
+        assert 0 < float(inside.mean()) < 1  # both sides of the image's edge are read
+        outs[warp, a] = np.asarray(out)
+    # control: the three warps give different outputs on this history
+    assert np.abs(outs["bicubic", -0.75] - outs["bicubic", -0.5]).max() > 1e-3
+    assert np.abs(outs["bicubic", -0.75] - outs["bilinear", -0.75]).max() > 1e-3
