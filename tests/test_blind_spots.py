@@ -99,8 +99,9 @@ def _tus_golden(filter_, beta_name, f=2, jitter=(0.3, 0.7), alpha=0.6, sigma=0.4
                   jnp.zeros((1,), bool))
     config = tus.Config(factor=f, filter=filter_, beta=beta_name, rectify="none",
                         alpha=alpha, sigma=sigma)
+    # N = 0.5 in the history: α = max(1/N, α) would differ from the constant α asked
     state = tus.State(jnp.concatenate([jnp.full((1, h * f, w * f, 3), 0.5),
-                                       jnp.full((1, h * f, w * f, 1), 5.0)], -1))
+                                       jnp.full((1, h * f, w * f, 1), 0.5)], -1))
     out = np.asarray(tus.make(config).step({}, state, frame)[0])[0]
     jx, jy = jitter
     checked = 0
@@ -458,7 +459,8 @@ def test_tus_reads_its_history_with_its_own_warp():
     and the scaled input (N = 0) outside it; with β = 1 and α = max(1/N, α₀) the output
     is α s + (1 - α) h and N grows by one (eq. 39). The reference composes jtus's warp
     (checked against PyTorch's ``grid_sample``) and its up-sampling. Catches: either
-    read falling back to ``sample``'s default method or Keys parameter."""
+    read falling back to ``sample``'s default method or Keys parameter; α's floor
+    ignored."""
     from jtus.models import tus
 
     frames, _ = seqdata.to_jax(seqdata.sequence(T=2, B=1, h=6, w=5, max_motion=1.5))
@@ -472,12 +474,13 @@ def test_tus_reads_its_history_with_its_own_warp():
     outs = {}
     for warp, a in (("bicubic", -0.75), ("bicubic", -0.5), ("bilinear", -0.75)):
         config = tus.Config(factor=f, warp=warp, warp_a=a, rectify="none", beta="one",
-                            inverse_count=True, alpha=0.01)
+                            inverse_count=True, alpha=0.3)  # the floor binds where N > 3.3
         out, state = tus.make(config).step({}, tus.State(jnp.asarray(hist)), frame)
         rep, inside = sampling.sample(jnp.asarray(hist), pos, warp, a=a, return_mask=True)
         h = jnp.where(inside, rep[..., :3], s)
         n = jnp.where(inside, rep[..., 3:], 0.0) + 1.0
-        alpha = jnp.clip(1.0 / n, 0.01, 1.0)
+        alpha = jnp.clip(1.0 / n, 0.3, 1.0)
+        assert 0 < float((1.0 / n < 0.3).mean()) < 1
         # float32; 0 measured for both (the same ops in another order could round)
         np.testing.assert_allclose(state.history[..., 3:], n, rtol=0, atol=1e-6)
         np.testing.assert_allclose(out, alpha * s + (1 - alpha) * h, rtol=0, atol=1e-6)
@@ -486,3 +489,83 @@ def test_tus_reads_its_history_with_its_own_warp():
     # control: the three warps give different outputs on this history
     assert np.abs(outs["bicubic", -0.75] - outs["bicubic", -0.5]).max() > 1e-3
     assert np.abs(outs["bicubic", -0.75] - outs["bilinear", -0.75]).max() > 1e-3
+
+
+def test_tus_counts_frames_or_samples_and_bounds_alpha_by_one():
+    """N counts every frame (``count="frames"``: +1 whatever β) or the samples a pixel
+    received (``"samples"``: +β); α = 1/N is clipped to [α₀, 1], so a pixel whose N is
+    below 1 (a first sample with β < 1, the tent's largest weight, eq. 42) takes
+    α = 1: out = β s + (1 - β) h. Catches: frames counted as β, the upper bound of α
+    dropped (αβ = 1 there)."""
+    from jtus.models import tus
+
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=1, B=1, h=6, w=5, max_motion=0.0))
+    frame = _at(frames, 0)._replace(reset=jnp.zeros((1,), bool))
+    f = 4
+    hist = jnp.concatenate([jnp.full((1, 6 * f, 5 * f, 3), 0.5),
+                            jnp.zeros((1, 6 * f, 5 * f, 1))], -1)  # 0.5, no sample yet
+    s = sampling.jitter_aligned_upsample(frame.color, frame.jitter, f)
+    xy = seqdata.jau_positions(np.asarray(frame.jitter), 6, 5, f) - 0.5
+    tent = np.prod(1 - np.abs(xy - np.round(xy)), -1)[..., None]  # eq. 40 at the nearest
+    m = tus.make(tus.Config(factor=f, rectify="none", inverse_count=True, alpha=0.01,
+                            count="samples", beta="max"))
+    out, state = m.step({}, tus.State(hist), frame)
+    np.testing.assert_allclose(state.history[..., 3:], tent, rtol=0, atol=1e-6)
+    assert float(tent.min()) < 0.5  # N < 1 somewhere
+    np.testing.assert_allclose(out, tent * s + (1 - tent) * 0.5, rtol=0, atol=1e-6)
+    m = tus.make(tus.Config(factor=f, rectify="none", inverse_count=True, alpha=0.01,
+                            count="frames", beta="box"))
+    out, state = m.step({}, tus.State(hist), frame)
+    np.testing.assert_array_equal(state.history[..., 3], 1.0)
+
+
+@pytest.mark.parametrize("space", ["rgb", "ycocg"])
+def test_tus_clamp_and_clip_rectify_by_their_definitions(space):
+    """Rectification against the box of the 3x3 LR samples around each HR pixel's
+    nearest sample (clamped to the image), in RGB or YCoCg, written out per pixel in
+    numpy: ``clamp`` clips each channel to [min, max]; ``clip`` moves the history
+    along the segment from the samples' mean to it until it is inside the box. Read
+    where β = 0 (the box β: no sample in the pixel), so the output is the rectified
+    history. Catches: the two swapped, the box taken at the wrong pixel."""
+    from jtus.models import tus
+
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=1, B=1, h=6, w=5, max_motion=0.0))
+    frame = _at(frames, 0)._replace(reset=jnp.zeros((1,), bool))
+    f, h, w = 4, 6, 5
+    rng = np.random.default_rng(7)
+    hist = rng.uniform(-0.5, 1.5, size=(1, h * f, w * f, 3))
+    state = tus.State(jnp.asarray(np.concatenate([hist, np.full(hist.shape[:3] + (1,), 3.0)],
+                                                 -1), jnp.float32))
+    ycocg = np.asarray([[0.25, 0.5, 0.25], [0.5, 0.0, -0.5], [-0.25, 0.5, -0.25]])
+    to = (lambda x: x @ ycocg.T) if space == "ycocg" else (lambda x: x)
+    back = (lambda x: x @ np.linalg.inv(ycocg).T) if space == "ycocg" else (lambda x: x)
+    color = to(np.asarray(frame.color, np.float64)[0])
+    jx, jy = np.asarray(frame.jitter, np.float64)[0]
+    outs = {}
+    for rectify in ("clamp", "clip"):
+        m = tus.make(tus.Config(factor=f, rectify=rectify, color_space=space, alpha=0.5,
+                                warp="bilinear"))
+        outs[rectify] = np.asarray(m.step({}, state, frame)[0])[0]
+    checked = 0
+    for y in range(h * f):
+        for x in range(w * f):
+            nx = int(np.floor((x + 0.5) / f - jx + 0.5))  # the nearest sample
+            ny = int(np.floor((y + 0.5) / f - jy + 0.5))
+            if any(x <= f * (a + jx) < x + 1 and y <= f * (b + jy) < y + 1
+                   for a in range(w) for b in range(h)):
+                continue  # a sample in this pixel: β = 1
+            taps = np.stack([color[min(max(b, 0), h - 1), min(max(a, 0), w - 1)]
+                             for b in (ny - 1, ny, ny + 1) for a in (nx - 1, nx, nx + 1)])
+            lo, hi, mean = taps.min(0), taps.max(0), taps.mean(0)
+            hv = to(hist[0, y, x])
+            want = {"clamp": np.clip(hv, lo, hi)}
+            v = hv - mean
+            t = min([(hi[c] - mean[c]) / v[c] if v[c] > 0 else (lo[c] - mean[c]) / v[c]
+                     for c in range(3) if v[c] != 0] + [np.inf])
+            want["clip"] = mean + min(max(t, 0.0), 1.0) * v
+            for rectify in ("clamp", "clip"):
+                np.testing.assert_allclose(outs[rectify][y, x], back(want[rectify]), rtol=0,
+                                           atol=2e-6, err_msg=(rectify, y, x))
+            checked += 1
+    assert checked > 300
+    assert np.abs(outs["clamp"] - outs["clip"]).max() > 0.05  # control: they differ

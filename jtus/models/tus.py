@@ -203,8 +203,8 @@ def step(params, state: State, frame: Frame, config: Config = Config()):
                          jnp.where(inside, rep_count, fresh[..., 3:]))
     beta = _beta(config, frame, beta_max)
     count = count + (1.0 if config.count == "frames" else beta)
-    alpha = (jnp.clip(1.0 / jnp.maximum(count, 1e-6), config.alpha, 1.0) if config.inverse_count
-             else config.alpha)
+    # N = 0 (a pixel no sample reached yet, counting samples): 1/0 = inf, clipped to 1
+    alpha = jnp.clip(1.0 / count, config.alpha, 1.0) if config.inverse_count else config.alpha
     ab = alpha * beta
     out = ab * s + (1 - ab) * rgb
     return out, State(jnp.concatenate([out, count], -1))
