@@ -519,14 +519,17 @@ def test_tus_counts_frames_or_samples_and_bounds_alpha_by_one():
     np.testing.assert_array_equal(state.history[..., 3], 1.0)
 
 
-@pytest.mark.parametrize("space", ["rgb", "ycocg"])
-def test_tus_clamp_and_clip_rectify_by_their_definitions(space):
+@pytest.mark.parametrize("space,flat", [("rgb", False), ("ycocg", False), ("rgb", True)])
+def test_tus_clamp_and_clip_rectify_by_their_definitions(space, flat):
     """Rectification against the box of the 3x3 LR samples around each HR pixel's
     nearest sample (clamped to the image), in RGB or YCoCg, written out per pixel in
     numpy: ``clamp`` clips each channel to [min, max]; ``clip`` moves the history
     along the segment from the samples' mean to it until it is inside the box. Read
     where β = 0 (the box β: no sample in the pixel), so the output is the rectified
-    history. Catches: the two swapped, the box taken at the wrong pixel."""
+    history. ``flat``: green is 0.25 in every sample and in the history (a flat-shaded
+    surface), so v = 0 there: that channel sets no bound on the clip. Catches: the two
+    swapped, the box taken at the wrong pixel, a channel with v = 0 taken as a face of
+    the box (the history then snapped to the mean)."""
     from jtus.models import tus
 
     frames, _ = seqdata.to_jax(seqdata.sequence(T=1, B=1, h=6, w=5, max_motion=0.0))
@@ -534,6 +537,9 @@ def test_tus_clamp_and_clip_rectify_by_their_definitions(space):
     f, h, w = 4, 6, 5
     rng = np.random.default_rng(7)
     hist = rng.uniform(-0.5, 1.5, size=(1, h * f, w * f, 3))
+    if flat:
+        frame = frame._replace(color=frame.color.at[..., 1].set(0.25))
+        hist[..., 1] = 0.25
     state = tus.State(jnp.asarray(np.concatenate([hist, np.full(hist.shape[:3] + (1,), 3.0)],
                                                  -1), jnp.float32))
     ycocg = np.asarray([[0.25, 0.5, 0.25], [0.5, 0.0, -0.5], [-0.25, 0.5, -0.25]])

@@ -159,9 +159,10 @@ def _rectify(config, hist, color, xy):
         return back(jnp.clip(h, lo, hi))
     lo, hi, mean = _box(to(color), xy, True)  # clip the segment mean -> h onto the box
     v = h - mean
-    safe = jnp.where(jnp.abs(v) < 1e-12, 1e-12, v)
-    t = jnp.where(v > 0, (hi - mean) / safe, jnp.where(v < 0, (lo - mean) / safe, jnp.inf))
-    t = jnp.clip(jnp.min(t, -1, keepdims=True), 0.0, 1.0)
+    # per channel, how far along v the box's face is (>= 0: lo <= mean <= hi); a channel
+    # with v = 0 sets no bound (its unselected quotient may be inf or nan: never read)
+    t = jnp.where(v > 0, (hi - mean) / v, jnp.where(v < 0, (lo - mean) / v, jnp.inf))
+    t = jnp.minimum(jnp.min(t, -1, keepdims=True), 1.0)
     return back(mean + t * v)
 
 
