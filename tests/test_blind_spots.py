@@ -22,6 +22,12 @@ def _at(tree, t):
     return jax.tree_util.tree_map(lambda x: x[t], tree)
 
 
+def _cast_frame(frame, dtype):
+    """``frame`` with its colour, depth, motion and jitter in ``dtype``."""
+    return frame._replace(**{k: jnp.asarray(getattr(frame, k), dtype)
+                             for k in ("color", "depth", "motion", "jitter")})
+
+
 def test_dlctus_reset_history_is_the_jitter_aligned_input():
     """A reset frame's history is its own jitter-aligned bilinear input with
     accumulation 1 (thesis sec. 4.2: the first frame), whatever the state held.
@@ -365,14 +371,11 @@ def test_mlp_computes_in_float32_whatever_the_frame_type(jit):
     frame = _at(frames, 0)._replace(jitter=jnp.asarray([[0.0078125, 0.875], [0.625, 0.25]]))
     config = mlp.Config(factor=4, jitter=jit)
     params = mlp.init(jax.random.PRNGKey(1), config)
-    fields = ("color", "depth", "motion", "jitter")
-    cast = lambda fr, dt: fr._replace(**{k: jnp.asarray(getattr(fr, k), dt)  # noqa: E731
-                                         for k in fields})
     for dtype in (jnp.float16, jnp.float64):
         with jax.enable_x64(dtype == jnp.float64):
-            typed = cast(frame, dtype)
+            typed = _cast_frame(frame, dtype)
             assert typed.color.dtype == dtype
-            want = mlp.step(params, (), cast(typed, jnp.float32), config)[0]
+            want = mlp.step(params, (), _cast_frame(typed, jnp.float32), config)[0]
             got = mlp.step(params, (), typed, config)[0]
             assert got.dtype == jnp.float32, dtype
             np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
@@ -437,12 +440,9 @@ def test_models_compute_in_float32_whatever_the_frame_type(name):
     frames, _ = seqdata.to_jax(seqdata.sequence(T=2, B=1, h=6, w=5, reset_at=(1, 0)))
     model = models.build(name, 4)
     params = model.init(jax.random.PRNGKey(0))
-    fields = ("color", "depth", "motion", "jitter")
-    cast = lambda fr, dt: fr._replace(**{k: jnp.asarray(getattr(fr, k), dt)  # noqa: E731
-                                         for k in fields})
     with jax.enable_x64(True):
         runs = []
-        for fr in (cast(frames, jnp.float64), frames):
+        for fr in (_cast_frame(frames, jnp.float64), frames):
             assert fr.color.dtype == (jnp.float64 if not runs else jnp.float32)
             runs.append(rollout.outputs(model.step, params, model.init_state(_first(fr)), fr))
         (got, got_state), (want, want_state) = runs
