@@ -247,6 +247,22 @@ EQUIVALENT: dict[str, str] = {
                                                   "in JAX (clamped)",
     # gamma 1 through the formula: sign(r) |r|^1 is r to the bit (checked on 1e5 float32
     # normals); only the derivative in the frame's colour at r = 0 differs, never taken
+    "jtus.models.tus.x__scaled_input__mutmut_11": "the tent's read left at sample's default "
+                                                  "method, which is bilinear",
+    "jtus.models.tus.x__scaled_input__mutmut_15": "u shifted by a whole pixel: the same "
+                                                  "distance to the nearest sample (to float32 "
+                                                  "rounding of the shifted coordinate)",
+    "jtus.models.tus.x__scaled_input__mutmut_16": "u shifted by a whole pixel: as above",
+    "jtus.models.tus.x__scaled_input__mutmut_46": "integer offsets: int + float32 is float32, "
+                                                  "the same values",
+    "jtus.models.tus.x__scaled_input__mutmut_48": "integer offsets: as above",
+    "jtus.models.tus.x__scaled_input__mutmut_77": "bilinear at a pixel centre (border "
+                                                  "clamped, as nearest) is that pixel exactly",
+    "jtus.models.tus.x__beta__mutmut_21": "jitter in float64 (under 64-bit types) only "
+                                          "picks the sample's cell: the same cell",
+    "jtus.models.tus.x_step__mutmut_5": "depth in float64 (under 64-bit types) is only "
+                                        "compared, for dilation: the same nearest sample",
+    "jtus.models.tus.x__rectify__mutmut_26": "with_mean None for False: both falsy",
     "jtus.models.mlp.x__boost__mutmut_1": "gamma 1 through sign(r)|r|^1: r to the bit",
     # the de-jittering read casts the jitter to the colour's type (float32) itself
     "jtus.models.mlp.x_step__mutmut_15": "jitter uncast before JAU, which casts it to the "
@@ -260,6 +276,16 @@ EQUIVALENT: dict[str, str] = {
 BREAKS_IMPORT: dict[str, str] = {
     "jtus.models.mlp.xǁConfigǁ__post_init____mutmut_1": "the jitter check inverted: "
                                                         "Config() raises at import",
+    # TUS: Config() (its defaults: colour space "rgb", alpha 1.0) refused, or the checks
+    # iterating None
+    **{f"jtus.models.tus.x\u01c1Config\u01c1__post_init____mutmut_{n}": why for n, why in (
+        (1, "the checks replaced by None: iterating it raises at import"),
+        (10, "'rgb' renamed in the allowed colour spaces: Config() raises at import"),
+        (11, "'rgb' renamed in the allowed colour spaces: Config() raises at import"),
+        (18, "every check inverted: Config() raises at import"),
+        (20, "the alpha check inverted: Config() raises at import"),
+        (21, "alpha's range emptied (1 < alpha <= 1): Config() raises at import"),
+        (23, "alpha 1 refused (alpha < 1): Config() with alpha 1.0 raises at import"))},
 }
 
 OUT = os.path.join(ROOT, "docs", "results", "mutation", "results.md")
@@ -430,7 +456,7 @@ def run_module(module, workdir, max_children, recheck=False, fresh=False, op_by_
         stats = os.path.join(dest, "mutants", "mutmut-stats.json")
         if os.path.exists(stats):
             os.remove(stats)
-        survivors = [k for k, v in module_status(module, workdir, env).items()
+        survivors = [k for k, v in effective(module_status(module, workdir, env)).items()
                      if v in ("survived", "no tests", "not checked", "timeout")
                      and k not in EQUIVALENT]
         if survivors:

@@ -1,5 +1,6 @@
 """JAU and TUS (thesis sec. 2.4) as models."""
 
+import re
 
 import jax
 import jax.numpy as jnp
@@ -125,6 +126,31 @@ def test_thesis_presets_and_registry():
         models.build("nerf", 4)
     with pytest.raises(ValueError, match="rectify"):
         tus.Config(rectify="reject")
+
+
+@pytest.mark.parametrize("field,bad", [("rectify", "reject"), ("filter", "lanczos"),
+                                       ("beta", "two"), ("color_space", "hsv"),
+                                       ("warp", "sinc"), ("count", "pixels"), ("alpha", 0.0),
+                                       ("alpha", 1.5), ("factor", 0)])
+def test_tus_config_names_the_bad_field(field, bad):
+    """A bad TUS setting is refused with an error that starts with its field's name
+    (anchored: a field name inside a longer word does not match) and says what was
+    expected and what it got."""
+    with pytest.raises(ValueError, match=rf"^{field}: expected .*, got {re.escape(repr(bad))}$"):
+        tus.Config(**{field: bad})
+
+
+def test_tus_config_accepts_its_boundaries_and_every_choice():
+    """Factor 1 (TAA at the render resolution), α = 1 and a tiny α > 0 are valid, as is
+    every listed choice of each setting: a check that refuses one of them is wrong."""
+    tus.Config(factor=1)
+    tus.Config(alpha=1.0)
+    tus.Config(alpha=1e-6)
+    for field, allowed in (("rectify", tus.RECTIFY), ("filter", tus.FILTERS),
+                           ("beta", tus.BETAS), ("color_space", ("rgb", "ycocg")),
+                           ("warp", sampling.METHODS), ("count", tus.COUNTS)):
+        for value in allowed:
+            assert getattr(tus.Config(**{field: value}), field) == value
 
 
 @pytest.mark.parametrize("name", ["tus", "tus-mean", "kpn", "dlctus"])
