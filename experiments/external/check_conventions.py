@@ -3,24 +3,37 @@ renderer's output, through what ``import-exr`` wrote (jtus's conventions):
 
 1. motion: warping the previous target with the vectors (bilinear, at HR) reproduces
    the current target better than not warping and better than the negated vectors
-   (mean absolute error over the frames that move, away from the image border);
+   (mean absolute error over the frames that move, away from the image border), and
+   leaves at most 0.8 of the unwarped error. The last bound caught vectors that
+   carried hit points through another object's motion (``render_mitsuba.py``'s shape
+   lookup before its fix): on ``turntable`` they left 0.95 of the unwarped error, the
+   fixed ones 0.62-0.63 (``fence`` 0.39 and 0.30; ``library``, where only the camera
+   moves, 0.39 both times; ``docs/results/external-conventions/``). Lighting that changes (the flickering light, the sun) is
+   what no vector explains;
 2. jitter: each 1-spp input is closer to the target sampled at the stated jitter
    position than at the LR pixel centre and than at the next frame's jitter.
 
     python experiments/external/check_conventions.py data/external/*.h5
 
-Exits non-zero when a check fails. Prints one line per dataset.
+Exits non-zero when a check fails. Prints one line per dataset and writes the table to
+``docs/results/external-conventions/``.
 """
 
 from __future__ import annotations
 
+import os
 import sys
 
 import jax.numpy as jnp
 import numpy as np
 
-from jtus import sampling
-from jtus.data.dataset import Dataset
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+from common import write  # noqa: E402
+
+from jtus import sampling  # noqa: E402
+from jtus.data.dataset import Dataset  # noqa: E402
+
+MAX_WARP_RATIO = 0.8
 
 
 def _warp(prev, mv, f):
@@ -62,20 +75,29 @@ def check(path):
                          ("next", jitter[(t + 1) % T])):
             j[key].append(np.abs(_at_jitter(tg[t], jit, f, h, w) - color[t]).mean())
     m = {k: float(np.mean(v)) for k, v in {**e, **j}.items()}
-    ok = (m["warp"] < m["none"] and m["warp"] < m["negated"] and m["stated"] < m["centre"]
-          and m["stated"] < m["next"])
+    m["ratio"] = m["warp"] / m["none"]
+    ok = (m["ratio"] <= MAX_WARP_RATIO and m["warp"] < m["negated"]
+          and m["stated"] < m["centre"] and m["stated"] < m["next"])
+    m["ok"] = ok
     print(f"{path}: {'ok' if ok else 'FAILED'}  warp error {m['warp']:.4f} (no warp "
           f"{m['none']:.4f}, negated {m['negated']:.4f}; {len(e['warp'])} moving frames); input "
           f"vs target at the stated jitter {m['stated']:.4f} (centre {m['centre']:.4f}, next "
           f"frame's jitter {m['next']:.4f})")
-    return ok
+    return m
 
 
 def main(paths):
     if not paths:
         raise SystemExit("usage: check_conventions.py DATASET.h5 [...]")
-    results = [check(p) for p in paths]
-    return 0 if all(results) else 1
+    results = {os.path.basename(p): check(p) for p in paths}
+    rows = [f"| {k} | {m['warp']:.4f} | {m['none']:.4f} | {m['ratio']:.2f} | "
+            f"{m['negated']:.4f} | {m['stated']:.4f} | {m['centre']:.4f} | {m['next']:.4f} | "
+            f"{'ok' if m['ok'] else 'FAILED'} |" for k, m in results.items()]
+    write("external-conventions", "\n".join([
+        "| clip | warped by its motion | unwarped | ratio | negated motion | input vs target "
+        "at its jitter | at the pixel centre | at the next jitter | check |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |", *rows]), results)
+    return 0 if all(m["ok"] for m in results.values()) else 1
 
 
 if __name__ == "__main__":

@@ -271,8 +271,7 @@ def render_frame(mi, clip, t, jitters, cache):
     target = img[..., :3] + SKY * (1.0 - img[..., 3:4])
     sensor = scene.sensors()[0]
     integrator = scene.integrator()
-    aov = mi.load_dict({"type": "aov", "aovs": "pp:position,si:shape_index"})
-    names = [s.id() for s in scene.shapes()]
+    aov = mi.load_dict({"type": "aov", "aovs": "pp:position"})
     out = {"target": target}
     for f, jit in jitters.items():
         n = SIZE // f
@@ -286,17 +285,28 @@ def render_frame(mi, clip, t, jitters, cache):
         col = np.stack([np.asarray(spec.x), np.asarray(spec.y), np.asarray(spec.z)], -1)
         _, _, aovs = aov.sample(scene, sampler, ray)
         pos = np.stack([np.asarray(aovs[i]) for i in range(3)], -1)
-        sid = np.rint(np.asarray(aovs[3])).astype(int)
-        hit = np.asarray(scene.ray_intersect(ray).is_valid()).astype(bool)
+        si = scene.ray_intersect(ray)
+        hit = np.asarray(si.is_valid()).astype(bool)
+        # which shape each ray hit, by comparing the hit's shape pointer with each shape
+        # of the scene. Not the `shape_index` AOV: that is the shape's slot in Dr.Jit's
+        # instance registry (creation order, reused across scenes), not its index in
+        # scene.shapes(); Mitsuba 3.9.1 numbers them differently, which carried hit
+        # points back through another object's motion.
+        owner = {s.id(): np.asarray(si.shape == mi.ShapePtr(s)).astype(bool) & hit
+                 for s in scene.shapes()}
+        bad = 0  # hit points outside their own shape's bounding box (must be none)
+        for name, sel in owner.items():
+            bb = next(s for s in scene.shapes() if s.id() == name).bbox()
+            lo, hi = (np.array([v.x, v.y, v.z]) for v in (bb.min, bb.max))
+            bad += int((~((pos[sel] >= lo - 1e-3) & (pos[sel] <= hi + 1e-3)).all(-1)).sum())
         col = np.where(hit[:, None], col, SKY)
         ray_d = np.stack([np.asarray(ray.d.x), np.asarray(ray.d.y), np.asarray(ray.d.z)], -1)
         # backward motion: each hit point carried back through its object's previous pose
         prev_p = pos.copy()
-        for k, name in enumerate(names):
+        for name, sel in owner.items():
             m, pm = _rigid(shapes, name), _rigid(pshapes, name)
             if m is None or np.allclose(m, pm):
                 continue
-            sel = hit & (sid == k)
             ph = np.concatenate([pos[sel], np.ones((sel.sum(), 1))], -1)
             prev_p[sel] = (ph @ (pm @ np.linalg.inv(m)).T)[:, :3]
         prev_xy, _ = project(pcam, np.where(hit[:, None], prev_p, 0.0))
@@ -309,7 +319,8 @@ def render_frame(mi, clip, t, jitters, cache):
                   "depth": z.reshape(n, n).astype(np.float32),
                   "motion": motion.reshape(n, n, 2).astype(np.float32),
                   "check_xy": np.abs(project(cam, pos[hit])[0] - cur_xy[hit]).max()
-                  if hit.any() else 0.0}
+                  if hit.any() else 0.0,
+                  "check_owner": bad}
     return out
 
 
@@ -340,6 +351,11 @@ def render_clip(mi, clip, out, frames=FRAMES):
     worst = 0.0
     for t in range(frames):
         r = render_frame(mi, clip, t, {2: seq[t], 4: seq[t]}, cache)
+        for f in (2, 4):
+            if r[f]["check_owner"]:
+                raise SystemExit(f"{clip} frame {t} at {f}x: {r[f]['check_owner']} hit points "
+                                 "lie outside the bounding box of the shape they were "
+                                 "assigned to; their motion vectors would be wrong")
         os.makedirs(os.path.join(out, clip, "target"), exist_ok=True)
         write_exr(os.path.join(out, clip, "target", f"frame{t:04d}.exr"),
                   {c: r["target"][..., i] for i, c in enumerate("RGB")})
@@ -402,10 +418,11 @@ def main():
                             "--sidecar", os.path.join(src, f"x{f}", "sidecar.json"),
                             "--out", os.path.join(args.out, f"{clip}-x{f}.h5"),
                             "--name", clip, "--force"], check=True)
-    # what made these renders: another Mitsuba, Dr.Jit or LLVM can move the motion
-    # vectors of thin geometry (re-rendered with 3.9.1 / 1.5.0 / LLVM 19, TUS on `fence`
-    # at 4x scored 21.86 dB against 21.43 on the first render; JAU, which reads no
-    # vectors, the same to 0.01 dB)
+    # what made these renders. Earlier renders took each hit's shape from the
+    # `shape_index` AOV, whose numbering changed between Mitsuba builds (TUS on `fence`
+    # at 4x scored 21.86 dB on one render and 21.43 on another; JAU, which reads no
+    # vectors, the same to 0.01 dB); the shape pointer comparison above does not depend
+    # on it, and the bounding-box check refuses a render where it would go wrong
     import drjit
     with open(os.path.join(args.out, "render.json"), "w") as fh:
         json.dump({"mitsuba": mi.__version__, "drjit": drjit.__version__,
