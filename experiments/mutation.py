@@ -263,6 +263,20 @@ EQUIVALENT: dict[str, str] = {
     "jtus.models.tus.x_step__mutmut_5": "depth in float64 (under 64-bit types) is only "
                                         "compared, for dilation: the same nearest sample",
     "jtus.models.tus.x__rectify__mutmut_26": "with_mean None for False: both falsy",
+    # KPN: which split key draws which layer's initial weights is a choice between draws
+    # of the same distribution (nothing pins an initialization's values)
+    **{f"jtus.models.kpn.x_init__mutmut_{n}": "another split key for a layer's random "
+       "initialization: a draw from the same distribution" for n in (7, 9, 31, 44, 56, 64, 77)},
+    "jtus.models.kpn.x_phase_index__mutmut_3": "the jitter table in float64 (under 64-bit "
+                                               "types): the same nearest entry",
+    "jtus.models.kpn.x_phase_index__mutmut_5": "the jitter table in float64: as above",
+    "jtus.models.kpn.x_phase_index__mutmut_10": "the jitter in float64: the same nearest "
+                                                "entry",
+    "jtus.models.kpn.x_phase_index__mutmut_17": "argmin over axis 1 of a [B,n] array is "
+                                                "axis -1",
+    "jtus.models.kpn.x__switched_conv__mutmut_4": "concatenate's axis defaults to 0",
+    "jtus.models.kpn.x_kernels__mutmut_49": "softmax's axis defaults to -1",
+    "jtus.models.kpn.x_step__mutmut_38": "einsum subscripts in upper case: the same sum",
     "jtus.models.mlp.x__boost__mutmut_1": "gamma 1 through sign(r)|r|^1: r to the bit",
     # the de-jittering read casts the jitter to the colour's type (float32) itself
     "jtus.models.mlp.x_step__mutmut_15": "jitter uncast before JAU, which casts it to the "

@@ -236,6 +236,26 @@ def test_dlctus_dilation_reprojects_with_the_dilated_motion():
     assert float(jnp.abs(plain - want).max()) > 1e-3  # control: dilation changes the read
 
 
+def test_kpn_batch_elements_are_independent():
+    """A batch of KPN frames gives each element's output and state as that element run
+    alone, each with its own jitter's weight set, also with more elements than the HR
+    image has rows (5 against 4). Catches the per-sample convolution looping over
+    another axis than the batch's."""
+    from jtus.models import kpn
+
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=1, B=5, h=1, w=2, seed=3))
+    frame = _at(frames, 0)
+    assert len(set(map(tuple, np.asarray(frame.jitter).tolist()))) > 1  # several phases
+    model = kpn.make(kpn.Config(factor=4))
+    params = model.init(jax.random.PRNGKey(1))
+    out, state = model.step(params, model.init_state(frame), frame)
+    for b in range(5):
+        one = jax.tree_util.tree_map(lambda x: x[b:b + 1], frame)
+        o, st = model.step(params, model.init_state(one), one)
+        np.testing.assert_allclose(out[b:b + 1], o, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(state.history[b:b + 1], st.history, rtol=0, atol=1e-6)
+
+
 def test_kpn_input_preparation():
     """Herveau et al.'s network input at HR: the jitter-aligned bilinear colour,
     linear depth and motion in HR pixels (both bilinearly up-sampled), then the
@@ -436,8 +456,8 @@ def test_models_compute_in_float32_whatever_the_frame_type(name):
     type then changes inside the scan, the outputs come out in float64, or a position
     is computed in float64 (TUS's reprojection read with float64 motion: about 1e-6 of
     a value, where a run under 64-bit types with float32 frames would be cast the same
-    way and match; its input read at a float64 jitter-aligned position). Half-precision frames: the MLP's test above, and
-    ``test_losses.py`` for the losses."""
+    way and match; its input read at a float64 jitter-aligned position). Half-precision
+    frames: the MLP's test above, and ``test_losses.py`` for the losses."""
     from jtus import models
 
     frames, _ = seqdata.sequence(T=2, B=1, h=6, w=5, reset_at=(1, 0))
