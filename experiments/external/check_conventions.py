@@ -8,8 +8,8 @@ renderer's output, through what ``import-exr`` wrote (jtus's conventions):
    carried hit points through another object's motion (``render_mitsuba.py``'s shape
    lookup before its fix): on ``turntable`` they left 0.95 of the unwarped error, the
    fixed ones 0.62-0.63 (``fence`` 0.39 and 0.30; ``library``, where only the camera
-   moves, 0.39 both times; ``docs/results/external-conventions/``). Lighting that changes (the flickering light, the sun) is
-   what no vector explains;
+   moves, 0.39 both times; ``docs/results/external-conventions/``). Lighting that
+   changes (the flickering light, the sun) is what no vector explains;
 2. jitter: each 1-spp input is closer to the target sampled at the stated jitter
    position than at the LR pixel centre and than at the next frame's jitter.
 
