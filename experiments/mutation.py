@@ -38,6 +38,7 @@ import argparse
 import ast
 import collections
 import json
+import math
 import os
 import re
 import shutil
@@ -433,7 +434,8 @@ def row(module, status, seconds):
     survivors = sorted(k + (" (timed out)" if v == "timeout" else "")
                        for k, v in status.items()
                        if v in ("survived", "timeout") and k not in EQUIVALENT)
-    rate = f"{100 * killed / tested:.0f}%" if tested else "n/a"
+    # rounded down to 0.1%: 202 of 203 is 99.5%, not a rounded-up 100%
+    rate = f"{math.floor(1000 * killed / tested) / 10:g}%" if tested else "n/a"
     print(f"{module}: {killed}/{tested} killed ({rate}), {dict(counts)}"
           + (f", {seconds:.0f} s" if seconds is not None else ""))
     return (module, len(status), tested, killed, rate, seconds, survivors)

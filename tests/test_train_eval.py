@@ -435,6 +435,11 @@ def test_mutation_script_counts_mutants_and_sets_the_jit_mode(tmp_path, monkeypa
     assert (run, killed) == (4, 2)
     _, _, run, killed, *_, survivors = mu.row("m.py", {**status, breaks: "survived"}, None)
     assert (run, killed) == (4, 1) and breaks in survivors
+    # the rate is rounded down: one survivor among 203 is not 100%
+    many = {f"m.x_a__mutmut_{i}": "killed" for i in range(202)}
+    assert mu.row("m.py", {**many, "m.x_b__mutmut_1": "survived"}, None)[4] == "99.5%"
+    assert mu.row("m.py", many, None)[4] == "100%"
+    assert mu.row("m.py", status, None)[4] == "33.3%"
     conftest = open(os.path.join(os.path.dirname(__file__), "conftest.py")).read()
     assert "\nimport jax\n" in conftest and "\nimport os\n" in conftest  # the hook's names
     ns = {"jax": jax, "os": os}
