@@ -278,6 +278,10 @@ EQUIVALENT: dict[str, str] = {
     "jtus.models.kpn.x__switched_conv__mutmut_4": "concatenate's axis defaults to 0",
     "jtus.models.kpn.x_kernels__mutmut_49": "softmax's axis defaults to -1",
     "jtus.models.kpn.x_step__mutmut_38": "einsum subscripts in upper case: the same sum",
+    "jtus.models.kpn.x_step__mutmut_47": "einsum subscripts in upper case: the same sum",
+    "jtus.models.kpn.x_prepare__mutmut_3": "jitter uncast before JAU, which casts it to "
+                                           "the colour's float32",
+    "jtus.models.kpn.x_init_state__mutmut_9": "jitter uncast before JAU, as above",
     "jtus.models.mlp.x__boost__mutmut_1": "gamma 1 through sign(r)|r|^1: r to the bit",
     # the de-jittering read casts the jitter to the colour's type (float32) itself
     "jtus.models.mlp.x_step__mutmut_15": "jitter uncast before JAU, which casts it to the "
