@@ -246,8 +246,6 @@ EQUIVALENT: dict[str, str] = {
                                                   "in JAX (clamped)",
     "jtus.sampling.warp.x_warp_plan__mutmut_138": "i0[..., 2] of a size-2 axis is i0[..., 1] "
                                                   "in JAX (clamped)",
-    # gamma 1 through the formula: sign(r) |r|^1 is r to the bit (checked on 1e5 float32
-    # normals); only the derivative in the frame's colour at r = 0 differs, never taken
     "jtus.models.tus.x__scaled_input__mutmut_11": "the tent's read left at sample's default "
                                                   "method, which is bilinear",
     "jtus.models.tus.x__scaled_input__mutmut_15": "u shifted by a whole pixel: the same "
@@ -282,6 +280,8 @@ EQUIVALENT: dict[str, str] = {
     "jtus.models.kpn.x_prepare__mutmut_3": "jitter uncast before JAU, which casts it to "
                                            "the colour's float32",
     "jtus.models.kpn.x_init_state__mutmut_9": "jitter uncast before JAU, as above",
+    # gamma 1 through the formula: sign(r) |r|^1 is r to the bit (checked on 1e5 float32
+    # normals); only the derivative in the frame's colour at r = 0 differs, never taken
     "jtus.models.mlp.x__boost__mutmut_1": "gamma 1 through sign(r)|r|^1: r to the bit",
     # the de-jittering read casts the jitter to the colour's type (float32) itself
     "jtus.models.mlp.x_step__mutmut_15": "jitter uncast before JAU, which casts it to the "

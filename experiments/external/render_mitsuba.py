@@ -292,19 +292,18 @@ def render_frame(mi, clip, t, jitters, cache):
         # instance registry (creation order, reused across scenes), not its index in
         # scene.shapes(); Mitsuba 3.9.1 numbers them differently, which carried hit
         # points back through another object's motion.
-        owner = {s.id(): np.asarray(si.shape == mi.ShapePtr(s)).astype(bool) & hit
-                 for s in scene.shapes()}
+        owner = [(s, np.asarray(si.shape == mi.ShapePtr(s)).astype(bool) & hit)
+                 for s in scene.shapes()]
         bad = 0  # hit points outside their own shape's bounding box (must be none)
-        for name, sel in owner.items():
-            bb = next(s for s in scene.shapes() if s.id() == name).bbox()
-            lo, hi = (np.array([v.x, v.y, v.z]) for v in (bb.min, bb.max))
+        for s, sel in owner:
+            lo, hi = (np.array([v.x, v.y, v.z]) for v in (s.bbox().min, s.bbox().max))
             bad += int((~((pos[sel] >= lo - 1e-3) & (pos[sel] <= hi + 1e-3)).all(-1)).sum())
         col = np.where(hit[:, None], col, SKY)
         ray_d = np.stack([np.asarray(ray.d.x), np.asarray(ray.d.y), np.asarray(ray.d.z)], -1)
         # backward motion: each hit point carried back through its object's previous pose
         prev_p = pos.copy()
-        for name, sel in owner.items():
-            m, pm = _rigid(shapes, name), _rigid(pshapes, name)
+        for s, sel in owner:
+            m, pm = _rigid(shapes, s.id()), _rigid(pshapes, s.id())
             if m is None or np.allclose(m, pm):
                 continue
             ph = np.concatenate([pos[sel], np.ones((sel.sum(), 1))], -1)
