@@ -9,8 +9,9 @@ rendered here (``jtus.sim``, test split, so no training video), shown enlarged:
   state of an unmoving image under the jitter cycle.
 
 Columns: the input (nearest-enlarged), TUS, DLCTUS (shipped weights), the best
-comparison system (``--best``: by default NSRR-fast, the best of them on the held-out
-validation videos, ``docs/results/comparison-val/``) and the reference.
+comparison system (``--best``: by default the one with the highest PSNR on the held-out
+validation videos, read from ``docs/results/comparison-val/x<F>/results.json``, which
+``python -m jtus.evaluate`` writes: ``best_on_validation``) and the reference.
 
 The crops are not picked by eye. The frame is the last of the clip; the window is
 chosen on the reference alone by a stated rule: for thin geometry, texture and the
@@ -28,6 +29,7 @@ Writes the picture and ``docs/results/readme_figure[_x2]/result.{md,json}``.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 
 import jax
@@ -97,15 +99,17 @@ def main(argv=None):
     p.add_argument("--factor", type=int, default=4, choices=(2, 4))
     p.add_argument("--size", type=int, default=256, help="HR size of each clip")
     p.add_argument("--frames", type=int, default=32)
-    p.add_argument("--best", default="nsrr-fast=experiments/weights/nsrr-fast-x{f}.msgpack",
-                   help="the comparison system's LABEL=PATH")
+    p.add_argument("--best", help="the comparison system's LABEL=PATH (default: "
+                   "best_on_validation)")
     p.add_argument("--zoom", type=int, default=2, help="nearest enlargement of each crop")
     p.add_argument("--out", default=os.path.join(ROOT, "docs", "img", "readme_crops.png"))
     args = p.parse_args(argv)
     if args.size < CROP or args.size % (4 * args.factor):
         p.error(f"--size: expected >= {CROP} and a multiple of {4 * args.factor}, "
                 f"got {args.size}")
-    entries = models.load_all(["tus", "shipped", args.best], args.factor)
+    best = args.best or best_on_validation(args.factor)
+    print(f"comparison system: {best}", flush=True)
+    entries = models.load_all(["tus", "shipped", best], args.factor)
     labels = ["input"] + [e.label for e in entries] + ["reference"]
     grid, data, rows = [], [], []
     for case, scene, rule in CASES:
@@ -133,6 +137,23 @@ def main(argv=None):
           note=f"{args.factor}x; {args.size}x{args.size} clips of {args.frames} frames (test "
                f"split), the last frame, {CROP}x{CROP} windows chosen on the reference by the "
                f"rule in the script's docstring; picture: `{os.path.relpath(args.out, ROOT)}`.")
+
+
+BASELINES = ("jau", "tus", "dlctus-shipped")
+
+
+def best_on_validation(factor, root=ROOT):
+    """``LABEL=experiments/weights/LABEL-x<F>.msgpack`` of the trained comparison system
+    with the highest PSNR in ``docs/results/comparison-val/x<F>/results.json``."""
+    path = os.path.join(root, "docs", "results", "comparison-val", f"x{factor}", "results.json")
+    with open(path) as fh:
+        scores = json.load(fh)[str(factor)]
+    trained = {k: v["psnr"] for k, v in scores.items() if k not in BASELINES}
+    if not trained:
+        raise ValueError(f"{path}: no comparison system scored; run the command in its "
+                         f"results.md with the trained systems")
+    label = max(trained, key=trained.get)
+    return f"{label}=experiments/weights/{label}-x{factor}.msgpack"
 
 
 def picture(grid, labels, cases, data, args):

@@ -379,6 +379,22 @@ def test_comparison_table_systems_and_targets():
                    "NSRR - TUS > 0, random, 4x": (-0.5, False)}
 
 
+def test_readme_figure_takes_the_best_trained_system_on_validation(tmp_path):
+    """experiments/readme_figure.py's default comparison column: the trained system with
+    the highest validation PSNR, never a baseline, with a clear error when none scored."""
+    rf = _load_experiment("readme_figure")
+    d = tmp_path / "docs" / "results" / "comparison-val" / "x4"
+    d.mkdir(parents=True)
+    scores = {"jau": 25.3, "tus": 25.4, "dlctus-shipped": 28.3, "mlp": 25.0, "nsrr": 27.1,
+              "nsrr-fast": 27.0}
+    (d / "results.json").write_text(json.dumps({"4": {k: {"psnr": v} for k, v in
+                                                      scores.items()}}))
+    assert rf.best_on_validation(4, str(tmp_path)) == "nsrr=experiments/weights/nsrr-x4.msgpack"
+    (d / "results.json").write_text(json.dumps({"4": {"jau": {"psnr": 1.0}}}))
+    with pytest.raises(ValueError, match="no comparison system scored"):
+        rf.best_on_validation(4, str(tmp_path))
+
+
 def test_training_summary_takes_the_longer_log(tmp_path):
     """A run's newest log is its longer one (file times mean nothing in a fresh clone);
     on a tie the exported (finished) one; logs of other data are not counted."""
