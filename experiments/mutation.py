@@ -262,10 +262,23 @@ EQUIVALENT: dict[str, str] = {
     "jtus.models.tus.x_step__mutmut_5": "depth in float64 (under 64-bit types) is only "
                                         "compared, for dilation: the same nearest sample",
     "jtus.models.tus.x__rectify__mutmut_26": "with_mean None for False: both falsy",
-    # KPN: which split key draws which layer's initial weights is a choice between draws
-    # of the same distribution (nothing pins an initialization's values)
-    **{f"jtus.models.kpn.x_init__mutmut_{n}": "another split key for a layer's random "
-       "initialization: a draw from the same distribution" for n in (7, 9, 31, 44, 56, 64, 77)},
+    # Initialization keys. Under JAX's partitionable threefry (its default) split(k, 6)
+    # begins with split(k, 5), and a key array indexed past its end is clamped to the
+    # last key: both give the same parameters. A key shared by a single layer and a
+    # per-phase stack's parent is no shared draw either (the stack draws from that key's
+    # children); a key shared by two layers is, and tests/test_blind_spots.py::
+    # test_every_layer_draws_its_own_initialization kills it (r = 1 over their prefix).
+    **{f"jtus.models.kpn.x_init__mutmut_{n}": why for n, why in (
+        (9, "split(key, 6) begins with split(key, 5): the same parameters"),
+        (77, "ks[5] of a 5-key array is ks[4] (clamped): the same parameters"),
+        (31, "conv1 from the key that is the parent of conv2's per-phase keys: no shared "
+             "draw"),
+        (56, "conv3's per-phase stack from the hidden layer's key: no shared draw"),
+        (64, "hidden from the per-phase kernel stack's parent key: no shared draw"))},
+    **{f"jtus.models.nsrr.x_init__mutmut_{n}": why for n, why in (
+        (7, "split(key, 5) begins with split(key, 4): the same parameters"),
+        (38, "k[4] of a 4-key array is k[3] (clamped): the same parameters"),
+        (39, "split(k[3], 11) begins with split(k[3], 10): the same parameters"))},
     "jtus.models.kpn.x_phase_index__mutmut_3": "the jitter table in float64 (under 64-bit "
                                                "types): the same nearest entry",
     "jtus.models.kpn.x_phase_index__mutmut_5": "the jitter table in float64: as above",

@@ -236,6 +236,31 @@ def test_dlctus_dilation_reprojects_with_the_dilated_motion():
     assert float(jnp.abs(plain - want).max()) > 1e-3  # control: dilation changes the read
 
 
+@pytest.mark.parametrize("name", ["dlctus", "nsrr", "nsrr-fast", "kpn", "mlp"])
+def test_every_layer_draws_its_own_initialization(name):
+    """No two parameter arrays of a fresh model come from one random key. Under JAX's
+    partitionable threefry (its default), two draws from one key agree over their common
+    leading elements whatever their shapes, so a layer initialized with a key another
+    layer used correlates with it (r = 1.0 over that prefix; NSRR's two feature
+    extractors then start identical), which no forward or gradient test sees. Every
+    pair of arrays of at least 64 values must correlate below 0.9 over their common
+    prefix (independent draws: |r| of order 1/sqrt(n); measured largest 0.36, NSRR, over
+    a 64-value prefix; 1.0 for a shared key)."""
+    from jtus import models
+
+    params = models.build(name, 4).init(jax.random.PRNGKey(0))
+    leaves = [(jax.tree_util.keystr(k), np.asarray(v, np.float64).ravel())
+              for k, v in jax.tree_util.tree_leaves_with_path(params) if v.size >= 64]
+    assert len(leaves) >= 3, name
+    worst = (0.0, None)
+    for i, (ka, a) in enumerate(leaves):
+        for kb, b in leaves[i + 1:]:
+            n = min(a.size, b.size)
+            r = abs(np.corrcoef(a[:n], b[:n])[0, 1])
+            worst = max(worst, (r, f"{ka} and {kb}"))
+    assert worst[0] < 0.9, f"{name}: {worst[1]} share their draws (r = {worst[0]:.3f})"
+
+
 def test_kpn_batch_elements_are_independent():
     """A batch of KPN frames gives each element's output and state as that element run
     alone, each with its own jitter's weight set, also with more elements than the HR

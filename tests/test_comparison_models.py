@@ -48,6 +48,26 @@ def test_parameter_counts():
     assert fast < 0.4 * 547767
 
 
+def test_nsrr_unet_widths_chain_and_fast_halves_them():
+    """Each U-Net layer's input width follows from the widths before it, with distinct
+    widths (the defaults repeat 64 and 128, so a layer sized from a neighbour of the
+    same width passed every other test), the network runs with them, and ``fast``
+    halves every width, keeping at least one channel."""
+    widths = (5, 6, 7, 9, 11, 13, 10, 8, 4)
+    cfg = nsrr.Config(unet=widths)
+    params = nsrr.init(jax.random.PRNGKey(0), cfg)
+    ins = [12 * 5, 5, 6, 7, 9, 11, 13 + 9, 10, 8 + 6, 4]  # skips: u[5]+u[3], u[7]+u[1]
+    assert [p["kernel"].shape[2:] for p in params["unet"]] == list(zip(ins, widths + (3,)))
+    frames, _ = _frames(T=2, B=1)
+    m = nsrr.make(cfg)
+    outs, _ = rollout.outputs(m.step, params, m.init_state(_first(frames)), frames)
+    assert outs.shape == (2, 1, 32, 32, 3) and np.all(np.isfinite(np.asarray(outs)))
+    assert nsrr.Config(fast=True).unet_widths() == (32, 16, 32, 32, 64, 64, 32, 32, 16)
+    assert nsrr.Config(fast=True, unet=tuple(range(1, 10))).unet_widths() == \
+        (1, 1, 1, 2, 2, 3, 3, 4, 4)
+    assert nsrr.Config(unet=widths).unet_widths() == widths
+
+
 @pytest.mark.parametrize("shape", [(1,), (7,), (64,), (3, 3, 12, 50), (50, 16)])
 def test_init_draws_are_jax_uniform_draws(shape):
     """layers.uniform (the models' inits) draws from a power-of-two length and keeps the
