@@ -12,8 +12,13 @@ runs reported and replaced:
 
 Every run is the ``diverse`` preset (randomized scenes, every jitter sequence, crop
 128, TBPTT windows of 8 over 16 frames, warm-up and cosine decay, clipping) with
-``--epochs`` x ``--steps-per-epoch`` steps (the schedule scales to it), in
-``runs/ablation-<study>/<variant>-s<seed>/`` (resumed when it exists; a variant that
+``--epochs`` x ``--steps-per-epoch`` steps (the schedule scales to it) at learning rate
+``--lr`` (3e-4, not the preset's 1e-3: at 1e-3 every network without the buffer, 4 of
+4, and 2 of 5 with it collapsed in their first epoch; at 3e-4, 1 of 5 probes, a seed
+that collapsed at 1e-3 too; ``experiments/collapse_probe.py``,
+``docs/results/collapse-probe/``), in
+``runs/ablation-<study>/<variant>-s<seed>/`` (``ablation-<study>-lr<lr>`` at another
+learning rate; resumed when it exists; a variant that
 trains the same network as one of an earlier study, DLCTUS as the recipe has it, reuses
 that run: ``run_dir``). A run whose
 network collapsed (``jtus.train.collapsed``: a gradient norm that stays at zero, or a
@@ -46,6 +51,14 @@ from jtus import recipe, train
 from jtus.config import PRESETS
 
 METRICS = ("psnr", "ssim", "spatial", "temporal")
+LR = 3e-4  # the ablations' learning rate (docstring)
+
+
+def study_name(study, lr=LR):
+    """``ablation-<study>``, with ``-lr<lr>`` at another learning rate than ``LR``: the
+    folder of a study's runs (under ``runs/`` and ``experiments/checkpoints/``) and of
+    its results (under ``docs/results/``)."""
+    return f"ablation-{study}" if lr == LR else f"ablation-{study}-lr{lr:g}"
 
 
 def variants(study, thetas):
@@ -81,7 +94,7 @@ def run_dir(study, label, changes, base, seed, thetas=()):
         for lab, ch in variants(s, thetas):
             if (s, lab) == (study, label) or \
                     what_trains(dataclasses.replace(base, seed=seed, **ch)) == key:
-                return os.path.join(ROOT, "runs", f"ablation-{s}", f"{slug(lab)}-s{seed}")
+                return os.path.join(ROOT, "runs", study_name(s, base.lr), f"{slug(lab)}-s{seed}")
     raise ValueError(f"label: {label!r} is not a variant of the {study} study")
 
 
@@ -95,9 +108,9 @@ def saved_dir(work):
     return os.path.join(ROOT, "experiments", "checkpoints", study, run)
 
 
-def save_runs(study):
+def save_runs(study, lr=LR):
     """Copy every run of ``study`` that has a checkpoint to its saved directory."""
-    root = os.path.join(ROOT, "runs", f"ablation-{study}")
+    root = os.path.join(ROOT, "runs", study_name(study, lr))
     for run in sorted(os.listdir(root)) if os.path.isdir(root) else []:
         work = os.path.join(root, run)
         if copy_run(work, saved_dir(work)):
@@ -105,10 +118,11 @@ def save_runs(study):
                   f"{os.path.relpath(saved_dir(work), ROOT)}")
 
 
-def runs_so_far(study):
+def runs_so_far(study, lr=LR):
     """Markdown lines on a study's runs before its results exist: each committed run's
     epochs, last validation PSNR and whether it collapsed (``train.collapsed``)."""
-    root = os.path.join(ROOT, "experiments", "checkpoints", f"ablation-{study}")
+    name = study_name(study, lr)
+    root = os.path.join(ROOT, "experiments", "checkpoints", name)
     runs = sorted(os.listdir(root)) if os.path.isdir(root) else []
     if not runs:
         return []
@@ -126,9 +140,11 @@ def runs_so_far(study):
     shared = "" if study == "accumulation" else (
         " The first variant trains the same network as the accumulation study's \"with "
         "buffer\" runs and reads those (`run_dir`).")
+    lr_arg = "" if lr == LR else f" --lr {lr:g}"
     return [f"In progress: the runs so far (committed in "
-            f"`experiments/checkpoints/ablation-{study}/`; `python experiments/ablations.py "
-            f"--study {study}` resumes them and writes the table when all are done).{shared}",
+            f"`experiments/checkpoints/{name}/`; `python experiments/ablations.py "
+            f"--study {study}{lr_arg}` resumes them and writes the table when all are done)."
+            f"{shared}",
             "", "| run | epochs | last validation PSNR (dB) | status |",
             "| --- | --- | --- | --- |", *rows]
 
@@ -179,6 +195,7 @@ def main(argv=None):
     p.add_argument("--thetas", type=float, nargs="+", default=[0.1, 0.5, 0.9])
     p.add_argument("--epochs", type=int, default=10)
     p.add_argument("--steps-per-epoch", type=int, default=200)
+    p.add_argument("--lr", type=float, default=LR, help="peak learning rate (default: %(default)g)")
     p.add_argument("--preset", default="diverse", choices=sorted(PRESETS))
     p.add_argument("--dataset", help="default: the preset's")
     p.add_argument("--max-videos", type=int, default=8)
@@ -186,12 +203,12 @@ def main(argv=None):
                    help="copy every run's checkpoint to experiments/checkpoints/ and exit")
     args = p.parse_args(argv)
     if args.save_only:
-        save_runs(args.study)
+        save_runs(args.study, args.lr)
         return
     if len(set(args.seeds)) != len(args.seeds) or min(args.seeds) < 0:
         p.error(f"--seeds: expected distinct seeds >= 0, got {args.seeds}")
     base = dataclasses.replace(PRESETS[args.preset], factor=args.factor, epochs=args.epochs,
-                               steps_per_epoch=args.steps_per_epoch,
+                               steps_per_epoch=args.steps_per_epoch, lr=args.lr,
                                **({"dataset": args.dataset} if args.dataset else {}))
     rows, data = [], {"trained": [], "collapsed": []}
     for label, changes in variants(args.study, args.thetas):
@@ -215,8 +232,9 @@ def main(argv=None):
     steps = args.epochs * args.steps_per_epoch
     data_name = os.path.relpath(base.dataset, ROOT) if os.path.isabs(base.dataset) else \
         base.dataset
-    write(f"ablation-{args.study}", table, data,
-          note=f"DLCTUS {args.factor}x, the `{args.preset}` recipe for {args.epochs} x "
+    write(study_name(args.study, args.lr), table, data,
+          note=f"DLCTUS {args.factor}x, the `{args.preset}` recipe at learning rate "
+               f"{args.lr:g} for {args.epochs} x "
                f"{args.steps_per_epoch} = {steps:,} steps per run; mean ± standard deviation "
                f"over the seeds that trained, on the first {args.max_videos} test videos of "
                f"`{data_name}`.")

@@ -63,15 +63,21 @@ def l1_recipe(factor, epochs, dataset, steps_per_epoch=100, seed=0):
     return config, os.path.join(ROOT, "runs", "sweep_theta", "L1")
 
 
-def evaluate_videos(model, params, dataset_path, factor, split="test", max_videos=None):
+def evaluate_videos(model, params, dataset_path, factor, split="test", max_videos=None,
+                    videos="*"):
     """Means over whole videos of ``jtus.evaluate.video_metrics`` (PSNR, SSIM, spatial and
-    temporal error)."""
+    temporal error), on the first ``max_videos`` videos whose names match ``videos``."""
+    import fnmatch
+
     from jtus.data.dataset import Dataset
     from jtus.evaluate import video_metrics
 
     acc = {}
     with Dataset(dataset_path) as ds:
-        for name in ds.videos(split)[:max_videos]:
+        names = [n for n in ds.videos(split) if fnmatch.fnmatchcase(n, videos)]
+        if not names:
+            raise ValueError(f"videos: no {split} video of {dataset_path} matches {videos!r}")
+        for name in names[:max_videos]:
             frames, targets = jax.tree_util.tree_map(jnp.asarray, ds.video(split, name, factor))
             for k, v in video_metrics(model, params, frames, targets, factor).items():
                 acc.setdefault(k, []).append(v)

@@ -1,33 +1,32 @@
 """What accuracy costs in time: every model, reprojection warp and compute dtype, timed
 per frame at two resolutions (jitted, warm, median, same run) against PSNR/SSIM on the
-test videos, with FLOPs and bytes per frame; a Pareto plot; and the ablations of thesis
-Tables 13 (warp), 14 (motion-vector dilation) and 16 (accumulation buffer).
+test videos, with FLOPs and bytes per frame; a Pareto plot; and thesis Tables 13 (warp)
+and 14 (motion-vector dilation) at inference.
 
-    python experiments/pareto.py                            # shipped DLCTUS, baselines
-    python experiments/pareto.py --checkpoint nsrr=experiments/weights/nsrr-x4.msgpack \\
-        --checkpoint kpn=experiments/weights/kpn-x4.msgpack --train-ablations
+    python experiments/pareto.py          # shipped DLCTUS, baselines, trained comparison
 
 DLCTUS variants reuse the shipped weights (trained with the 16-tap a=-0.75 warp), as
 the thesis evaluated its warps with one trained network (Table 13); dilation is also
-switched at inference (Table 14). The accumulation-buffer ablation (Table 16) needs
-networks trained alike with and without it: ``--train-ablations`` trains both with the
-θ sweep's L1 recipe (reusing that sweep's run when it exists).
-Learned comparison systems without a ``--checkpoint`` are timed but not scored.
+switched at inference (Table 14). The learned comparison systems are scored with their
+trained parameters in ``experiments/weights/<name>-x<F>.msgpack`` (``--checkpoint
+NAME=PATH`` for others); one without parameters is timed but not scored. Quality is on
+the randomized scenes' unseen test seeds of ``data/diverse.h5`` (``--videos``), the
+first column of the README's table. Networks trained with and without the warp or the
+accumulation buffer (Tables 13 and 16 with retraining) are ``experiments/ablations.py``.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
-import sys
 
 import numpy as np
-from common import ROOT, WARPS, evaluate_videos, l1_recipe, write  # noqa: E402
+from common import ROOT, WARPS, evaluate_videos, write  # noqa: E402
 
-from jtus import bench, models, recipe, train
+from jtus import bench, models
 
 DTYPES = ("float32", "bfloat16", "float16")
+LEARNED = ("nsrr", "nsrr-fast", "kpn", "mlp")  # scored with experiments/weights/
 
 
 def _variants(include_dtypes=True):
@@ -36,8 +35,18 @@ def _variants(include_dtypes=True):
         for w, a in WARPS:
             out.append(("dlctus", {"warp": w, "warp_a": a, "dtype": dt}))
     out.append(("dlctus", {"dilation": True}))
-    for name in ("nsrr", "nsrr-fast", "kpn", "mlp"):
+    for name in LEARNED:
         out.append((name, {}))
+    return out
+
+
+def default_checkpoints(factor):
+    """``{name: path}`` of the trained comparison systems in ``experiments/weights/``."""
+    out = {}
+    for name in LEARNED:
+        path = os.path.join(ROOT, "experiments", "weights", f"{name}-x{factor}.msgpack")
+        if os.path.exists(path):
+            out[name] = path
     return out
 
 
@@ -51,14 +60,18 @@ def main(argv=None):
     p.add_argument("--factor", type=int, default=4)
     p.add_argument("--sizes", nargs="+", default=["720p", "1080p"])
     p.add_argument("--repeats", type=int, default=3)
-    p.add_argument("--dataset", default=os.path.join(ROOT, "data", "default.h5"))
+    p.add_argument("--dataset", default=os.path.join(ROOT, "data", "diverse.h5"))
+    p.add_argument("--videos", default="random_*",
+                   help="test videos scored (a glob on their names)")
     p.add_argument("--max-videos", type=int)
-    p.add_argument("--checkpoint", action="append", default=[], help="NAME=PATH")
-    p.add_argument("--train-ablations", action="store_true")
-    p.add_argument("--ablation-epochs", type=int, default=10,
-                   help="epochs of 100 steps for each accumulation-ablation network")
+    p.add_argument("--checkpoint", action="append", default=[],
+                   help="NAME=PATH (default: experiments/weights/NAME-x<F>.msgpack)")
     args = p.parse_args(argv)
-    ckpts = dict(c.split("=", 1) for c in args.checkpoint)
+    ckpts = default_checkpoints(args.factor)
+    for c in args.checkpoint:
+        if "=" not in c:
+            p.error(f"--checkpoint: expected NAME=PATH, got {c!r}")
+        ckpts.update([c.split("=", 1)])
     shipped = models.load("shipped", args.factor)
     rows = []
     for name, over in _variants():
@@ -80,29 +93,9 @@ def main(argv=None):
             params = {}
         if params is not None:
             rec.update(evaluate_videos(model, params, args.dataset, args.factor,
-                                       max_videos=args.max_videos))
+                                       max_videos=args.max_videos, videos=args.videos))
         rows.append(rec)
         print(rec)
-    if args.train_ablations:
-        # Table 16 needs two networks trained alike, with and without the accumulation
-        # buffer: the θ sweep's L1 recipe (its run is reused when it exists)
-        base, l1_work = l1_recipe(args.factor, args.ablation_epochs, args.dataset)
-        for acc, work in ((True, l1_work),
-                          (False, os.path.join(ROOT, "runs", "ablation_no_accumulation"))):
-            cfg = base if acc else dataclasses.replace(
-                base, model_overrides=(("accumulation", False),))
-            params, hist = train.train_and_evaluate(cfg, work, resume=True,
-                                                    progress=sys.stderr.isatty())
-            # a network whose clamped outputs saturate stops learning (docs/weights.md):
-            # its validation loss then repeats exactly from epoch to epoch
-            collapsed = len(hist) > 2 and len({h["val_loss"] for h in hist[1:]}) == 1
-            why = "; collapsed: validation constant from epoch 2" if collapsed else ""
-            rec = {"label": f"dlctus accumulation={acc} ({args.ablation_epochs}x100 steps{why})",
-                   "model": "dlctus", "collapsed": collapsed}
-            rec.update(evaluate_videos(recipe.model_for(cfg), params, args.dataset, args.factor,
-                                       max_videos=args.max_videos))
-            rows.append(rec)
-            print(rec)
     big = args.sizes[-1]
     table = [f"| system | ms/frame {' | ms/frame '.join(args.sizes)} | GFLOP/frame ({big}) | "
              f"MB/frame ({big}) | PSNR (dB) | SSIM | temporal |",
@@ -115,7 +108,9 @@ def main(argv=None):
                      f"{r.get(f'mbytes_{big}', float('nan')):.1f} | {q} |")
     d = write("pareto", "\n".join(table), rows,
               f"{args.factor}x; times at the listed HR sizes, median of {args.repeats}; quality "
-              f"on the test split of `{os.path.relpath(args.dataset, ROOT)}`.")
+              f"on the test videos `{args.videos}` of `{os.path.relpath(args.dataset, ROOT)}`"
+              f"; parameters: " + ", ".join(f"{k} `{os.path.relpath(v, ROOT)}`"
+                                            for k, v in sorted(ckpts.items())) + ".")
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -294,7 +294,7 @@ def test_ablation_studies_build_valid_models():
         ablations.variants("nope", [])
     # DLCTUS as the recipe has it is a variant of all three studies: it trains once,
     # under the accumulation study; the other variants train in their own study
-    base = PRESETS["diverse"]
+    base = dataclasses.replace(PRESETS["diverse"], lr=ablations.LR)
     shared = os.path.join(ablations.ROOT, "runs", "ablation-accumulation", "with_buffer-s3")
     for study, expected in (("accumulation", [shared, "without_buffer-s3"]),
                             ("warp", [shared, "bilinear-s3"]),
@@ -304,6 +304,12 @@ def test_ablation_studies_build_valid_models():
         assert dirs[0] == shared
         assert [os.path.relpath(d, os.path.join(ablations.ROOT, "runs", f"ablation-{study}"))
                 for d in dirs[1:]] == expected[1:]
+    # at another learning rate the runs (and results) have their own folders
+    other = dataclasses.replace(base, lr=1e-3)
+    assert ablations.run_dir("warp", "bilinear", ablations.variants("warp", [])[1][1], other,
+                             3) == os.path.join(ablations.ROOT, "runs",
+                                                "ablation-warp-lr0.001", "bilinear-s3")
+    assert ablations.study_name("theta", 1e-3) == "ablation-theta-lr0.001"
     # a run's checkpoint goes to experiments/checkpoints/ablation-<study>/<run>/ and back
     work = os.path.join(ablations.ROOT, "runs", "ablation-warp", "bilinear-s4")
     assert os.path.relpath(ablations.saved_dir(work), ablations.ROOT) == os.path.join(
@@ -328,6 +334,29 @@ def test_ablation_progress_reads_the_committed_runs(tmp_path, monkeypatch):
     text = "\n".join(ablations.runs_so_far("accumulation"))
     assert "| with_buffer-s0 | 2 of 10 | 25.25 | in training |" in text
     assert "| with_buffer-s1 | 1 of 10 | 20.00 | collapsed (the gradient norm stayed" in text
+
+
+def test_collapse_probe_reads_committed_runs_over_their_first_epochs(tmp_path):
+    """experiments/collapse_probe.py: a committed ablation run joins the table with its
+    variant, learning rate and seed from its folder and config, judged collapsed or not
+    (train.collapsed) on its first epochs only."""
+    cp = _load_experiment("collapse_probe")
+    keys = ("epoch", "grad_norm", "grad_norm_max", "val_loss", "val_psnr")
+    for run, lr, rows in (("without_buffer-s3", 1e-3, [(1, 0.1, 0.2, 0.3, 25.1),
+                                                         (2, 0.0, 0.0, 0.3, 25.1),
+                                                         (3, 0.0, 0.0, 0.3, 25.1)]),
+                          ("with_buffer-s0", 3e-4, [(1, 0.1, 0.2, 0.3, 26.0),
+                                                    (2, 0.1, 0.2, 0.2, 26.5),
+                                                    (3, 0.0, 0.0, 0.2, 26.5)])):
+        d = tmp_path / run
+        d.mkdir()
+        (d / "config.json").write_text(json.dumps({"lr": lr, "epochs": 10}))
+        (d / "metrics.json").write_text(json.dumps([dict(zip(keys, r)) for r in rows]))
+    got = {r["seed"]: r for r in cp.committed_runs(str(tmp_path), 2)}
+    assert (got[3]["variant"], got[3]["lr"], got[3]["epochs"]) == ("without buffer", 1e-3, 2)
+    assert "gradient norm stayed below" in got[3]["collapsed"]
+    assert (got[0]["variant"], got[0]["val_psnr"], got[0]["collapsed"]) == (
+        "with buffer", [26.0, 26.5], None)  # its third epoch's zero gradient is not read
 
 
 def test_runs_are_saved_and_restored(tmp_path):
