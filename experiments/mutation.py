@@ -279,6 +279,8 @@ EQUIVALENT: dict[str, str] = {
         (7, "split(key, 5) begins with split(key, 4): the same parameters"),
         (38, "k[4] of a 4-key array is k[3] (clamped): the same parameters"),
         (39, "split(k[3], 11) begins with split(k[3], 10): the same parameters"))},
+    "jtus.models.nsrr.x_step__mutmut_32": "the history read left at sample's default "
+                                          "method, which is bilinear",
     "jtus.models.kpn.x_phase_index__mutmut_3": "the jitter table in float64 (under 64-bit "
                                                "types): the same nearest entry",
     "jtus.models.kpn.x_phase_index__mutmut_5": "the jitter table in float64: as above",

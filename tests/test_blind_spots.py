@@ -479,13 +479,16 @@ def test_models_compute_in_float32_whatever_the_frame_type(name):
     float32 give with them off (the default), as float32. Catches: a frame field cast
     with ``astype(None)``, which is float32 only while 64-bit types are off: the state's
     type then changes inside the scan, the outputs come out in float64, or a position
-    is computed in float64 (TUS's reprojection read with float64 motion: about 1e-6 of
-    a value, where a run under 64-bit types with float32 frames would be cast the same
-    way and match; its input read at a float64 jitter-aligned position). Half-precision
+    is computed in float64 (TUS's and NSRR's reprojection read with float64 motion:
+    about 1e-6 of a value, where a run under 64-bit types with float32 frames would be
+    cast the same way and match; its input read at a float64 jitter-aligned position).
+    Half-precision
     frames: the MLP's test above, and ``test_losses.py`` for the losses."""
     from jtus import models
 
-    frames, _ = seqdata.sequence(T=2, B=1, h=6, w=5, reset_at=(1, 0))
+    # three frames, the second a reset: the third reads a history (NSRR's starts at zero,
+    # so with two frames its warp read only zeros and a float64 position passed)
+    frames, _ = seqdata.sequence(T=3, B=1, h=6, w=5, reset_at=(1, 0))
     # jitters that are not short binary fractions (the thesis's are), so that a position
     # computed from them in float64 differs from the float32 one
     jitter = np.random.default_rng(5).uniform(0.05, 0.95, frames.jitter.shape)
