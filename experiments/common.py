@@ -50,8 +50,7 @@ def write(name, table, data, note=""):
 
 
 def l1_recipe(factor, epochs, dataset, steps_per_epoch=100, seed=0):
-    """The short DLCTUS recipe the θ sweep trains with L1 and the accumulation ablation
-    reuses (its L1 run is the ablation's network with the buffer): the ``default``
+    """The short DLCTUS recipe of the θ sweep (``sweep_theta.py``): the ``default``
     preset with one validation video. Returns ``(config, workdir of the L1 run)``."""
     import dataclasses
 
