@@ -9,6 +9,7 @@ runs reported and replaced:
     python experiments/ablations.py --study accumulation            # 3 seeds each, 4x
     python experiments/ablations.py --study warp --seeds 0 1 2 --epochs 10
     python experiments/ablations.py --study theta --thetas 0.1 0.5 0.9 --seeds 0 1 2
+    python experiments/ablations.py --study warp --variants bilinear   # one core's share
 
 Every run is the ``diverse`` preset (randomized scenes, every jitter sequence, crop
 128, TBPTT windows of 8 over 16 frames, warm-up and cosine decay, clipping) with
@@ -199,6 +200,11 @@ def main(argv=None):
     p.add_argument("--preset", default="diverse", choices=sorted(PRESETS))
     p.add_argument("--dataset", help="default: the preset's")
     p.add_argument("--max-videos", type=int, default=8)
+    p.add_argument("--variants", nargs="+", metavar="VARIANT",
+                   help="train only these variants (by slug: with_buffer, bilinear, "
+                        "l_st_linear_θ_0_5, ...) and write no table; two processes on "
+                        "disjoint variants share the machine, and a run without it "
+                        "writes the table")
     p.add_argument("--save-only", action="store_true",
                    help="copy every run's checkpoint to experiments/checkpoints/ and exit")
     args = p.parse_args(argv)
@@ -210,8 +216,16 @@ def main(argv=None):
     base = dataclasses.replace(PRESETS[args.preset], factor=args.factor, epochs=args.epochs,
                                steps_per_epoch=args.steps_per_epoch, lr=args.lr,
                                **({"dataset": args.dataset} if args.dataset else {}))
+    chosen = variants(args.study, args.thetas)
+    if args.variants:
+        slugs = [slug(lab) for lab, _ in chosen]
+        bad = [v for v in args.variants if v not in slugs]
+        if bad:
+            p.error(f"--variants: {', '.join(bad)} not among the {args.study} study's "
+                    f"{', '.join(slugs)}")
+        chosen = [(lab, ch) for lab, ch in chosen if slug(lab) in args.variants]
     rows, data = [], {"trained": [], "collapsed": []}
-    for label, changes in variants(args.study, args.thetas):
+    for label, changes in chosen:
         trained, failed = run_variant(args.study, label, changes, base, args.seeds,
                                       args.max_extra, args.max_videos, sys.stderr.isatty(),
                                       args.thetas)
@@ -226,6 +240,10 @@ def main(argv=None):
         rows.append(f"| {label} | {', '.join(str(r['seed']) for r in trained) or '-'} | "
                     f"{', '.join(str(r['seed']) for r in failed) or 'none'} | "
                     + " | ".join(cells) + " |")
+    if args.variants:
+        print(f"trained {', '.join(args.variants)}; run without --variants for the table",
+              file=sys.stderr)
+        return
     table = "\n".join(["| variant | seeds trained | seeds collapsed (replaced) | PSNR (dB) | "
                        "SSIM | spatial error (θ=0) | temporal error (θ=1) |",
                        "| --- | --- | --- | --- | --- | --- | --- |"] + rows)
