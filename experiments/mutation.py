@@ -281,6 +281,9 @@ EQUIVALENT: dict[str, str] = {
         (39, "split(k[3], 11) begins with split(k[3], 10): the same parameters"))},
     "jtus.models.nsrr.x_step__mutmut_32": "the history read left at sample's default "
                                           "method, which is bilinear",
+    "jtus.models.nsrr.x_features__mutmut_8": "jitter in float64 (under 64-bit types) only "
+                                             "picks the zero-up-sampling cell: the same cell",
+    "jtus.models.nsrr.x_reweight_maps__mutmut_21": "last_relu None for False: both falsy",
     "jtus.models.kpn.x_phase_index__mutmut_3": "the jitter table in float64 (under 64-bit "
                                                "types): the same nearest entry",
     "jtus.models.kpn.x_phase_index__mutmut_5": "the jitter table in float64: as above",
@@ -320,6 +323,15 @@ BREAKS_IMPORT: dict[str, str] = {
         (20, "the alpha check inverted: Config() raises at import"),
         (21, "alpha's range emptied (1 < alpha <= 1): Config() raises at import"),
         (23, "alpha 1 refused (alpha < 1): Config() with alpha 1.0 raises at import"))},
+    # NSRR: Config() (extract (32, 32, 8), 9 U-Net widths) refused
+    **{f"jtus.models.nsrr.x\u01c1Config\u01c1__post_init____mutmut_{n}": why for n, why in (
+        (1, "extract[+1] (32) checked for 8: Config() raises at import"),
+        (2, "extract[-2] (32) checked for 8: Config() raises at import"),
+        (3, "the extract check inverted: Config() raises at import"),
+        (4, "extract's last width checked for 16: Config() raises at import"),
+        (5, "extract's last width checked for 7: Config() raises at import"),
+        (9, "the unet check inverted: Config() raises at import"),
+        (10, "10 U-Net widths required: Config() raises at import"))},
 }
 
 OUT = os.path.join(ROOT, "docs", "results", "mutation", "results.md")

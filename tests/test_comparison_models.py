@@ -68,6 +68,19 @@ def test_nsrr_unet_widths_chain_and_fast_halves_them():
     assert nsrr.Config(unet=widths).unet_widths() == widths
 
 
+@pytest.mark.parametrize("changes,message", [
+    ({"extract": (32, 32, 7)}, r"^extract: the last width must be 8, got \(32, 32, 7\)$"),
+    ({"unet": (64,) * 8}, r"^unet: expected 9 widths \(the 10th layer outputs 3\), got "
+                          r"\(64, 64, 64, 64, 64, 64, 64, 64\)$"),
+    ({"frames": 0}, r"^frames: expected >= 1, got 0$")])
+def test_nsrr_config_names_the_bad_field(changes, message):
+    """A bad NSRR setting is refused with an error that starts with its field's name and
+    says what was expected and what it got; the boundaries are accepted."""
+    with pytest.raises(ValueError, match=message):
+        nsrr.Config(**changes)
+    assert nsrr.Config(frames=1, extract=(8,)).frames == 1
+
+
 @pytest.mark.parametrize("shape", [(1,), (7,), (64,), (3, 3, 12, 50), (50, 16)])
 def test_init_draws_are_jax_uniform_draws(shape):
     """layers.uniform (the models' inits) draws from a power-of-two length and keeps the
