@@ -51,6 +51,23 @@ def _signal(proc, sig, ready, delay, timeout=300):
     return alive
 
 
+def _interrupt_generate(folder, out, sig, delay, tries=4):
+    """Run ``generate --preset diverse-tiny --out out`` (in ``folder``) and send ``sig``
+    ``delay`` seconds after its temporary file appears. diverse-tiny renders for 3-9 s
+    from then (2-core CPU, varying from session to session), so a run that finished
+    first is run again with a quarter of the delay. Returns the signalled process and
+    the digest of ``out`` before its run (None if there was none)."""
+    for _ in range(tries):
+        before = _digest(out) if os.path.exists(out) else None
+        proc = _start(["jtus.data", "generate", "--preset", "diverse-tiny", "--out", str(out),
+                       "--quiet"])
+        if _signal(proc, sig, lambda: any(f.endswith(".tmp") for f in os.listdir(folder)),
+                   delay):
+            return proc, before
+        delay /= 4
+    pytest.fail(f"generate finished before each of {tries} signals")
+
+
 def _temp_files(folder):
     return [f for f in os.listdir(folder) if f.endswith(".tmp") or f.startswith(".")]
 
@@ -59,15 +76,9 @@ def _temp_files(folder):
 def test_generate_killed_leaves_the_previous_dataset(tmp_path, k):
     out = tmp_path / "d.h5"
     dataset.generate("tiny", out, progress=False)
-    before = _digest(out)
-    # diverse-tiny renders for about 9 s once its temporary file exists (2-core CPU)
     delay = np.random.default_rng([1, k]).uniform(0.0, 6.0)
-    proc = _start(["jtus.data", "generate", "--preset", "diverse-tiny", "--out", str(out),
-                   "--quiet"])
-    assert _signal(proc, signal.SIGKILL,
-                   lambda: any(f.endswith(".tmp") for f in os.listdir(tmp_path)),
-                   delay), "generate finished before the kill"
-    # the previous version, whole (a run that finished first wrote the same bytes)
+    proc, before = _interrupt_generate(tmp_path, out, signal.SIGKILL, delay)
+    # the previous version, whole
     assert _digest(out) == before
     with dataset.Dataset(out) as ds:
         assert ds.videos("test")
@@ -114,10 +125,7 @@ def test_generate_terminated_removes_its_temporary_file(tmp_path, k):
     dataset.generate("tiny", out, progress=False)
     before = _digest(out)
     delay = np.random.default_rng([3, k]).uniform(0.0, 6.0)
-    proc = _start(["jtus.data", "generate", "--preset", "diverse-tiny", "--out",
-                   str(tmp_path / "new.h5"), "--quiet"])
-    assert _signal(proc, signal.SIGTERM,
-                   lambda: any(f.endswith(".tmp") for f in os.listdir(tmp_path)), delay)
+    proc, _ = _interrupt_generate(tmp_path, tmp_path / "new.h5", signal.SIGTERM, delay)
     assert proc.returncode == 128 + signal.SIGTERM
     assert _digest(out) == before and not _temp_files(tmp_path)
     # absent, or whole when the signal's exception was swallowed (jtus.cli.run)
