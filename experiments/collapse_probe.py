@@ -37,6 +37,12 @@ def probe_dir(label, lr, seed):
     return os.path.join(ROOT, "runs", "collapse-probe", f"{slug(label)}-lr{lr:g}-s{seed}")
 
 
+def is_probe(row):
+    """Whether a table row is a probe's (its run under ``runs/collapse-probe/``) rather
+    than a committed ablation run's."""
+    return row["workdir"].startswith(os.path.join("runs", "collapse-probe"))
+
+
 def probe(label, changes, lr, seed, epochs, base):
     cfg = dataclasses.replace(base, seed=seed, lr=lr, **changes)
     work = probe_dir(label, lr, seed)
@@ -90,7 +96,6 @@ def committed_runs(root, epochs):
                      "val_psnr": [h["val_psnr"] for h in hist],
                      "grad_norm_max": [h["grad_norm_max"] for h in hist],
                      "collapsed": train.collapsed(hist),
-                     "source": os.path.relpath(os.path.join(root, run), ROOT),
                      "workdir": os.path.relpath(os.path.join(root, run), ROOT)})
     return rows
 
@@ -112,8 +117,8 @@ def main(argv=None):
                 f"{args.epochs}")
     base = dataclasses.replace(PRESETS["diverse"], factor=4, epochs=10, steps_per_epoch=200)
     path = os.path.join(out_dir("collapse-probe"), "result.json")
-    rows = [r for r in json.load(open(path)) if "source" not in r] \
-        if os.path.exists(path) else []
+    # the probes of earlier invocations (committed runs are read afresh below)
+    rows = [r for r in json.load(open(path)) if is_probe(r)] if os.path.exists(path) else []
     done = {(r["variant"], r["lr"], r["seed"]) for r in rows}
     changes = dict(variants("accumulation", ()))
     for label in args.variants:
@@ -125,17 +130,15 @@ def main(argv=None):
                 print(rows[-1], file=sys.stderr, flush=True)
     rows += committed_runs(args.runs, args.epochs)
     for r in rows:  # measured while the run's checkpoint is here, then kept in the file
-        r.setdefault("workdir", os.path.relpath(probe_dir(r["variant"], r["lr"], r["seed"]),
-                                                ROOT))
         ck = os.path.join(ROOT, r["workdir"], "checkpoint.msgpack")
-        if os.path.exists(ck):
+        if "saturated" not in r and os.path.exists(ck):
             r["saturated"] = saturation(ck, base.dataset)
     rows.sort(key=lambda r: (r["variant"], -r["lr"], r["seed"]))
     table = ["| variant | lr | seed | run | epochs | validation PSNR per epoch (dB) | largest "
              "gradient norm per epoch | o1 outside [0, 1] at the end | collapsed |",
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in rows:
-        src = f"`{r['source']}`" if "source" in r else "probe"
+        src = "probe" if is_probe(r) else f"`{r['workdir']}`"
         table.append(f"| {r['variant']} | {r['lr']:g} | {r['seed']} | {src} | {r['epochs']} | "
                      + ", ".join(f"{v:.2f}" for v in r["val_psnr"]) + " | "
                      + ", ".join(f"{v:.2g}" for v in r["grad_norm_max"]) + " | "

@@ -49,6 +49,13 @@ def write(name, table, data, note=""):
     return d
 
 
+def weights_path(name, factor):
+    """Where a trained comparison system's parameters are shipped, relative to ``ROOT``:
+    ``experiments/weights/<name>-x<factor>.msgpack`` (its ``.json`` config and
+    ``-training.csv`` log beside it)."""
+    return f"experiments/weights/{name}-x{factor}.msgpack"
+
+
 def l1_recipe(factor, epochs, dataset, steps_per_epoch=100, seed=0):
     """The short DLCTUS recipe of the θ sweep (``sweep_theta.py``): the ``default``
     preset with one validation video. Returns ``(config, workdir of the L1 run)``."""

@@ -34,7 +34,7 @@ import csv
 import json
 import os
 
-from common import ROOT, command_line, write  # noqa: I001  (experiments/ on sys.path)
+from common import ROOT, command_line, weights_path, write  # noqa: I001  (experiments/ on sys.path)
 from external.evaluate_external import evaluate_clips
 from training_summary import SYSTEMS, find, summarize
 
@@ -73,7 +73,7 @@ def systems(factor):
         rows, planned, src = got
         run_dir = os.path.dirname(src)
         if src.startswith("experiments/weights/"):
-            path, status = f"experiments/weights/{m}-x{factor}.msgpack", "finished"
+            path, status = weights_path(m, factor), "finished"
             cfg_path = os.path.join(ROOT, path.replace(".msgpack", ".json"))
         else:
             path = f"{run_dir}/checkpoint.msgpack"

@@ -21,7 +21,7 @@ import argparse
 import os
 
 import numpy as np
-from common import ROOT, WARPS, evaluate_videos, write  # noqa: E402
+from common import ROOT, WARPS, evaluate_videos, weights_path, write  # noqa: E402
 
 from jtus import bench, models
 
@@ -44,7 +44,7 @@ def default_checkpoints(factor):
     """``{name: path}`` of the trained comparison systems in ``experiments/weights/``."""
     out = {}
     for name in LEARNED:
-        path = os.path.join(ROOT, "experiments", "weights", f"{name}-x{factor}.msgpack")
+        path = os.path.join(ROOT, weights_path(name, factor))
         if os.path.exists(path):
             out[name] = path
     return out

@@ -36,7 +36,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from common import ROOT, write  # noqa: I001  (experiments/ is on sys.path as a script)
+from common import ROOT, weights_path, write  # noqa: I001  (experiments/ is on sys.path as a script)
 
 from jtus import metrics, models, rollout, sampling, sim
 from jtus.frame import Frame
@@ -153,7 +153,7 @@ def best_on_validation(factor, root=ROOT):
         raise ValueError(f"{path}: no comparison system scored; run the command in its "
                          f"results.md with the trained systems")
     label = max(trained, key=trained.get)
-    return f"{label}=experiments/weights/{label}-x{factor}.msgpack"
+    return f"{label}={weights_path(label, factor)}"
 
 
 def picture(grid, labels, cases, data, args):
