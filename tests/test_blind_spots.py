@@ -482,8 +482,7 @@ def test_models_compute_in_float32_whatever_the_frame_type(name):
     is computed in float64 (TUS's and NSRR's reprojection read with float64 motion:
     about 1e-6 of a value, where a run under 64-bit types with float32 frames would be
     cast the same way and match; its input read at a float64 jitter-aligned position).
-    Half-precision
-    frames: the MLP's test above, and ``test_losses.py`` for the losses."""
+    Half-precision frames: the MLP's test above, and ``test_losses.py`` for the losses."""
     from jtus import models
 
     # three frames, the second a reset: the third reads a history (NSRR's starts at zero,
