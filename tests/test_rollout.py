@@ -8,9 +8,9 @@ import optax
 import pytest
 from jax.test_util import check_grads
 
-from jtus import losses, rollout, train
+from jtus import losses, rollout, sampling, train
 from jtus.models import dlctus
-from jtus.models.base import param_count
+from jtus.models.base import DTYPES, param_count
 from tests import seqdata
 
 
@@ -240,6 +240,27 @@ def test_opt2_gradients_equal_standard_float64(x64, factor):
     for a, b in zip(jax.tree_util.tree_leaves(g1), jax.tree_util.tree_leaves(g2)):
         np.testing.assert_allclose(b, a, rtol=1e-10, atol=1e-13)
     assert float(jnp.abs(g1["down"]["kernel"]).max()) > 1e-4  # the test sees a gradient
+
+
+@pytest.mark.parametrize("field,value,says", [
+    ("factor", 3, "factor: expected 2 or 4, got 3"),
+    ("near", 0.0, "near/far: expected 0 < near < far, got 0.0, 100.0"),
+    ("far", 0.05, "near/far: expected 0 < near < far, got 0.1, 0.05"),
+    ("warp", "cubic", f"warp: expected one of {sampling.METHODS}, got 'cubic'"),
+    ("formulation", "opt3", "formulation: expected one of ('standard', 'opt1', 'opt2'), "
+                            "got 'opt3'"),
+    ("channels", 16, "channels: the pixel shuffle to 2 outputs needs 32, got 16"),
+    ("conv_backward", "manual", "conv_backward: expected one of ('autodiff', 'custom'), "
+                                "got 'manual'"),
+    ("dtype", "int8", f"dtype: expected one of {tuple(DTYPES)}, got 'int8'"),
+])
+def test_config_names_the_bad_field(field, value, says):
+    """A bad DLCTUS setting is refused with a message naming the field, what was
+    expected and what came (compared whole)."""
+    with pytest.raises(ValueError) as err:
+        dlctus.Config(**{field: value})
+    assert str(err.value) == says
+    dlctus.Config(factor=2, near=0.05, far=50.0)  # control: valid fields pass
 
 
 def test_reset_equals_fresh_init_state():
