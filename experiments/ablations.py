@@ -85,18 +85,25 @@ def what_trains(cfg):
     return dataclasses.replace(cfg, model_overrides=()), recipe.model_for(cfg).config
 
 
-def run_dir(study, label, changes, base, seed, thetas=()):
-    """The workdir of a variant's run: that of the first variant (studies in ``STUDIES``
-    order) that trains the same network with the same seed. DLCTUS as the recipe has it
-    is the "with buffer", the "bicubic" and the "L1" variant: it trains once, in
-    ``runs/ablation-accumulation/``, and the warp and θ studies read that run."""
+def run_of(study, label, changes, base, seed, thetas=()):
+    """``(workdir, config)`` of a variant's run: those of the first variant (studies in
+    ``STUDIES`` order) that trains the same network with the same seed. DLCTUS as the
+    recipe has it is the "with buffer", the "bicubic" and the "L1" variant: it trains
+    once, in ``runs/ablation-accumulation/``, with the "with buffer" config (which a
+    resumed run must match exactly), and the warp and θ studies read that run."""
     key = what_trains(dataclasses.replace(base, seed=seed, **changes))
     for s in STUDIES[:STUDIES.index(study) + 1]:
         for lab, ch in variants(s, thetas):
-            if (s, lab) == (study, label) or \
-                    what_trains(dataclasses.replace(base, seed=seed, **ch)) == key:
-                return os.path.join(ROOT, "runs", study_name(s, base.lr), f"{slug(lab)}-s{seed}")
+            cfg = dataclasses.replace(base, seed=seed, **ch)
+            if (s, lab) == (study, label) or what_trains(cfg) == key:
+                return (os.path.join(ROOT, "runs", study_name(s, base.lr),
+                                     f"{slug(lab)}-s{seed}"), cfg)
     raise ValueError(f"label: {label!r} is not a variant of the {study} study")
+
+
+def run_dir(study, label, changes, base, seed, thetas=()):
+    """The workdir of a variant's run (``run_of``)."""
+    return run_of(study, label, changes, base, seed, thetas)[0]
 
 
 def slug(label):
@@ -158,8 +165,7 @@ def run_variant(study, label, changes, base, seeds, max_extra, max_videos, progr
     queue, next_seed = list(seeds), max(seeds) + 1
     while queue:
         seed = queue.pop(0)
-        cfg = dataclasses.replace(base, seed=seed, **changes)
-        work = run_dir(study, label, changes, base, seed, thetas)
+        work, cfg = run_of(study, label, changes, base, seed, thetas)
         if not os.path.exists(os.path.join(work, SAVED[0])) and \
                 copy_run(saved_dir(work), work):
             print(f"resuming {os.path.relpath(work, ROOT)} from its saved checkpoint",

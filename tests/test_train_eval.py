@@ -304,6 +304,13 @@ def test_ablation_studies_build_valid_models():
         assert dirs[0] == shared
         assert [os.path.relpath(d, os.path.join(ablations.ROOT, "runs", f"ablation-{study}"))
                 for d in dirs[1:]] == expected[1:]
+    # a variant that reads another's run resumes it with that run's own config (the
+    # bicubic variant sets the warp the recipe already has: the same network, but a
+    # config that train's resume check would refuse)
+    label, bicubic = ablations.variants("warp", [])[0]
+    work, cfg = ablations.run_of("warp", label, bicubic, base, 3)
+    assert work == shared and cfg == dataclasses.replace(base, seed=3)
+    assert cfg != dataclasses.replace(base, seed=3, **bicubic)
     # at another learning rate the runs (and results) have their own folders
     other = dataclasses.replace(base, lr=1e-3)
     assert ablations.run_dir("warp", "bilinear", ablations.variants("warp", [])[1][1], other,
