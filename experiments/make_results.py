@@ -75,6 +75,14 @@ NOTES = {
                       "too). The ablations below therefore train at 3e-4 "
                       "(`experiments/ablations.py --lr`, its default) and replace a "
                       "collapsed seed with the next one. The thesis trained at 1e-4.",
+    "ablation-accumulation": "The ablation networks train 2,000 steps at crop 128 over 16 "
+                             "frames, the thesis's 200 epochs at crop 256 over 30 frames: "
+                             "the table measures each option early in training, and a gap "
+                             "within about two standard errors of zero is not a difference "
+                             "these seeds can tell.",
+    "ablation-warp": "Each network here trains with the warp it is scored with; the "
+                     "Pareto section above switches the warp of the shipped weights at "
+                     "inference, as the thesis's Table 13 did.",
     "seqlen": "Seconds per step compare rows within one run: the machine may have been "
               "shared (the run shown shared it with a training job).",
 }
