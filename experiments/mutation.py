@@ -307,6 +307,30 @@ EQUIVALENT: dict[str, str] = {
     # the de-jittering read casts the jitter to the colour's type (float32) itself
     "jtus.models.mlp.x_step__mutmut_15": "jitter uncast before JAU, which casts it to the "
                                          "colour's float32",
+    # DLCTUS's formulations and convolution backwards give the same values and gradients
+    # by design (test_formulations_equal_standard, test_opt2_gradients_equal_standard_
+    # float64, test_custom_conv_backward_equals_autodiff): a mutant that swaps one for
+    # another changes the speed only
+    **{f"jtus.models.dlctus.x__trunk__mutmut_{n}": "the autodiff convolution backward "
+       "for the custom one (or back): the same values and gradients" for n in range(2, 7)},
+    **{f"jtus.models.dlctus.x__down__mutmut_{n}": "opt2's down-sampling for the "
+       "convolution's (or back): the same values" for n in (10, 11, 12)},
+    **{f"jtus.models.dlctus.x__output__mutmut_{n}": "opt1's output construction for the "
+       "standard one (or back): the same values" for n in (11, 12, 13)},
+    "jtus.models.dlctus.x__down__mutmut_22": "conv's default SAME padding is none at "
+                                             "kernel 4, stride 4 on sizes divisible by 4 "
+                                             "(the pixel shuffle requires them)",
+    "jtus.models.dlctus.x__down__mutmut_29": "'valid' for 'VALID': XLA's padding names "
+                                             "are read case-insensitively",
+    "jtus.models.dlctus.x__down__mutmut_47": "cell[:, 1:3] of a [B,2] array is "
+                                             "cell[:, 1:2]",
+    "jtus.models.dlctus.x__down__mutmut_81": "pixel_unshuffle by m = 1 is the identity",
+    "jtus.models.dlctus.x__down__mutmut_86": "pixel_unshuffle by m = 1 is the identity",
+    "jtus.models.dlctus.x__down__mutmut_96": "einsum subscripts in upper case: the same sum",
+    **{f"jtus.models.dlctus.x__output__mutmut_{n}": "o[..., 1:3] of the network's 2 "
+       "outputs is o[..., 1:2]" for n in (77, 114)},
+    "jtus.models.dlctus.x_assemble__mutmut_12": "the history and the zero-up-sampled input "
+                                                "both come in the carry dtype",
 }
 
 # "module.x_function__mutmut_N": mutants that make the module itself fail to import

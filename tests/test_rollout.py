@@ -293,6 +293,21 @@ def test_network_computes_in_its_dtype(formulation):
     np.testing.assert_allclose(np.asarray(b, np.float32), a, rtol=0, atol=0.02)
 
 
+def test_step_labels_its_stages_for_the_profile():
+    """The compiled step's operations carry the stage scopes ``python -m jtus.profile``
+    splits the time by (``profile.STAGES``: input up-sampling, reprojection, network,
+    output). Catches: a renamed scope, whose time the profile would file under "other"."""
+    from jtus import profile
+
+    model, params, frames, _ = _setup(T=2)
+    state = model.init_state(_first(frames))
+    frame = jax.tree_util.tree_map(lambda x: x[1], frames)
+    hlo = jax.jit(model.step).lower(params, state, frame).compile().as_text()
+    for stage in profile.STAGES[:4]:
+        assert f"/{stage}/" in hlo, stage
+    assert "/loss/" not in hlo  # control: a stage the step does not run is absent
+
+
 def test_reset_equals_fresh_init_state():
     model, params, frames, _ = _setup(T=4, reset_at=(2, 1))
     s0 = model.init_state(_first(frames))
