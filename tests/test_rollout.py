@@ -1,6 +1,8 @@
 """The rollout helper with DLCTUS: scan against a Python loop, BPTT/TBPTT, remat,
 formulations, resets, float64 gradients, and one trace across TBPTT windows."""
 
+import re
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -306,6 +308,12 @@ def test_step_labels_its_stages_for_the_profile():
     for stage in profile.STAGES[:4]:
         assert f"/{stage}/" in hlo, stage
     assert "/loss/" not in hlo  # control: a stage the step does not run is absent
+    # every operation is in a stage but the slice that takes the RGB out of the new
+    # history (the other op names are the arguments': params[...], state.history)
+    ops = re.findall(r'op_name="(jit\([^"]*)"', hlo)
+    outside = {op.rsplit("/", 1)[1] for op in ops
+               if profile.classify("", "", op)[0] == "other"}
+    assert len(ops) > 100 and outside == {"slice"}, outside
 
 
 def test_reset_equals_fresh_init_state():
