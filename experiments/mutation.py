@@ -329,6 +329,12 @@ EQUIVALENT: dict[str, str] = {
     "jtus.models.dlctus.x__down__mutmut_96": "einsum subscripts in upper case: the same sum",
     **{f"jtus.models.dlctus.x__output__mutmut_{n}": "o[..., 1:3] of the network's 2 "
        "outputs is o[..., 1:2]" for n in (77, 114)},
+    "jtus.models.dlctus.x_init__mutmut_8": "split(key, 10) begins with split(key, 9): the "
+                                          "same parameters",
+    "jtus.models.dlctus.x_init__mutmut_10": "split(key, 13) begins with split(key, 9): the "
+                                           "same parameters",
+    "jtus.models.dlctus.x__jau__mutmut_17": "jitter_aligned_upsample's method defaults to "
+                                           "bilinear",
     "jtus.models.dlctus.x_make__mutmut_2": "bind's step argument is used only without "
                                            "prepare and advance, which make gives",
     "jtus.models.dlctus.x_assemble__mutmut_12": "the history and the zero-up-sampled input "

@@ -236,6 +236,49 @@ def test_dlctus_dilation_reprojects_with_the_dilated_motion():
     assert float(jnp.abs(plain - want).max()) > 1e-3  # control: dilation changes the read
 
 
+@pytest.mark.parametrize("warp", ["bicubic", "bicubic9", "bicubic5"])
+def test_dlctus_reads_its_history_with_its_warp_and_keys_a(warp):
+    """The history is read at ``P + f * mv`` with the configured warp and Keys ``a``
+    (thesis sec. 5.5.1; a=-0.5 is the thesis's Bicubic5 before its change), the
+    jitter-aligned input where that falls outside: against ``sampling.sample`` (checked
+    against PyTorch's grid_sample). Catches: ``warp_a`` dropped on the way to the plan or
+    the read (PyTorch's -0.75 then)."""
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=2, B=2, max_motion=2.0))
+    frame = _at(frames, 1)
+    history = jnp.asarray(np.random.default_rng(8).uniform(size=(2, 32, 32, 4)), jnp.float32)
+    config = dlctus.Config(factor=4, warp=warp, warp_a=-0.5)
+    got = _dlctus_hist(config, frame, history)
+    xy = sampling.reproject_coords(frame.motion, 4)
+    read, inside = sampling.sample(history, xy, warp, a=-0.5, return_mask=True)
+    jau = sampling.jitter_aligned_upsample(
+        jnp.concatenate([frame.color, jnp.ones_like(frame.depth)], -1), frame.jitter, 4)
+    np.testing.assert_allclose(got, jnp.where(inside, read, jau), rtol=0, atol=1e-6)
+    assert not bool(inside.all())  # the motion reaches outside somewhere
+    other = _dlctus_hist(dlctus.Config(factor=4, warp=warp), frame, history)
+    assert float(jnp.abs(other - got).max()) > 1e-3  # control: a=-0.75 reads otherwise
+
+
+def test_dlctus_float64_carries_float64_through_every_stage(x64):
+    """``dtype="float64"`` (references, gradient checks) prepares, reads, constructs and
+    carries in float64, as the module says: every floating array of the prepared frame,
+    the output and the state. Catches: the frame cast to the default dtype, or the warp
+    plan's weights made in float32, which would leave float32 rounding (1e-7) in checks
+    meant to reach 1e-12."""
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=2, B=2, dtype=np.float64))
+    config = dlctus.Config(factor=4, dtype="float64")
+    model = dlctus.make(config)
+    params = jax.tree_util.tree_map(lambda x: x.astype(jnp.float64),
+                                    model.init(jax.random.PRNGKey(0)))
+    frame = _at(frames, 1)
+    pre = dlctus.prepare_frame(frame, config)
+    out, state = dlctus.advance(params, model.init_state(_first(frames)), pre, config)
+    leaves = [x for x in jax.tree_util.tree_leaves((pre, out, state))
+              if jnp.issubdtype(x.dtype, jnp.floating)]
+    assert len(leaves) >= 6 and {x.dtype for x in leaves} == {jnp.dtype(jnp.float64)}
+    f32 = dlctus.prepare_frame(frame, dlctus.Config(factor=4))  # control: float32 there
+    assert f32.jau.dtype == jnp.float32
+
+
 @pytest.mark.parametrize("name", ["dlctus", "nsrr", "nsrr-fast", "kpn", "mlp"])
 def test_every_layer_draws_its_own_initialization(name):
     """No two parameter arrays of a fresh model come from one random key. Under JAX's
