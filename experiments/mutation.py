@@ -358,6 +358,22 @@ BREAKS_IMPORT: dict[str, str] = {
         (20, "the alpha check inverted: Config() raises at import"),
         (21, "alpha's range emptied (1 < alpha <= 1): Config() raises at import"),
         (23, "alpha 1 refused (alpha < 1): Config() with alpha 1.0 raises at import"))},
+    # DLCTUS: a check inverted or its allowed values changed so that Config() (factor 4,
+    # near 0.1, far 100, warp bicubic, formulation opt2, 32 channels, custom backward,
+    # float32) is refused
+    **{f"jtus.models.dlctus.x\u01c1Config\u01c1__post_init____mutmut_{n}": why for n, why in (
+        (1, "the factor check inverted: Config() raises at import"),
+        (3, "factor 4 refused (2 or 5): Config() raises at import"),
+        (5, "the near/far check inverted: Config() raises at import"),
+        (6, "near 0.1 refused (1 < near): Config() raises at import"),
+        (10, "the warp check inverted: Config() raises at import"),
+        (12, "the formulation check inverted: Config() raises at import"),
+        (14, "the channels check inverted: Config() raises at import"),
+        (15, "32 channels refused (2 * 4 / 4 = 2): Config() raises at import"),
+        (16, "32 channels refused (2 / 4 * 4 = 2): Config() raises at import"),
+        (17, "32 channels refused (3 * 4 * 4 = 48): Config() raises at import"),
+        (22, "the conv_backward check inverted: Config() raises at import"),
+        (24, "compute_dtype(None) raises: Config() raises at import"))},
     # NSRR: Config() (extract (32, 32, 8), 9 U-Net widths) refused
     **{f"jtus.models.nsrr.x\u01c1Config\u01c1__post_init____mutmut_{n}": why for n, why in (
         (1, "extract[+1] (32) checked for 8: Config() raises at import"),

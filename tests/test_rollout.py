@@ -248,6 +248,7 @@ def test_opt2_gradients_equal_standard_float64(x64, factor):
     ("factor", 3, "factor: expected 2 or 4, got 3"),
     ("near", 0.0, "near/far: expected 0 < near < far, got 0.0, 100.0"),
     ("far", 0.05, "near/far: expected 0 < near < far, got 0.1, 0.05"),
+    ("far", 0.1, "near/far: expected 0 < near < far, got 0.1, 0.1"),
     ("warp", "cubic", f"warp: expected one of {sampling.METHODS}, got 'cubic'"),
     ("formulation", "opt3", "formulation: expected one of ('standard', 'opt1', 'opt2'), "
                             "got 'opt3'"),
