@@ -335,6 +335,11 @@ EQUIVALENT: dict[str, str] = {
                                            "same parameters",
     "jtus.models.dlctus.x__jau__mutmut_17": "jitter_aligned_upsample's method defaults to "
                                            "bilinear",
+    # every layer casts its kernel and bias to the activation's dtype itself
+    # (layers.conv), so the cast of the whole tree changes no forward value; in bfloat16
+    # training the parameter gradients then skip one rounding to bfloat16
+    "jtus.models.dlctus.x_network__mutmut_9": "the parameters left in float32: the layers "
+                                             "cast them to the activation's dtype",
     "jtus.models.dlctus.x_make__mutmut_2": "bind's step argument is used only without "
                                            "prepare and advance, which make gives",
     "jtus.models.dlctus.x_assemble__mutmut_12": "the history and the zero-up-sampled input "
