@@ -113,10 +113,11 @@ def against_thesis(study, trained):
         if lab == ref:
             continue
         v = np.array(v)
-        se = np.sqrt((v.var(ddof=1) / len(v) if len(v) > 1 else 0)
-                     + (r.var(ddof=1) / len(r) if len(r) > 1 else 0))
+        # one seed on either side: no spread to estimate it from
+        se = (f"{np.sqrt(v.var(ddof=1) / len(v) + r.var(ddof=1) / len(r)):.2f}"
+              if min(len(v), len(r)) > 1 else "-")
         th = f"{thesis[lab] - thesis[ref]:+.2f}" if lab in thesis and ref in thesis else "-"
-        lines.append(f"| {lab} | {v.mean() - r.mean():+.2f} | {se:.2f} | {th} |")
+        lines.append(f"| {lab} | {v.mean() - r.mean():+.2f} | {se} | {th} |")
     return lines
 
 
@@ -282,8 +283,8 @@ def main(argv=None):
         for k in METRICS:
             v = np.array([r[k] for r in trained])
             digits = 2 if k == "psnr" else 4 if k == "ssim" else 5
-            cells.append(f"{v.mean():.{digits}f} ± {v.std(ddof=1) if len(v) > 1 else 0:.{digits}f}"
-                         if len(v) else "-")
+            spread = f" ± {v.std(ddof=1):.{digits}f}" if len(v) > 1 else ""  # one seed: none
+            cells.append(f"{v.mean():.{digits}f}{spread}" if len(v) else "-")
         rows.append(f"| {label} | {', '.join(str(r['seed']) for r in trained) or '-'} | "
                     f"{', '.join(str(r['seed']) for r in failed) or 'none'} | "
                     + " | ".join(cells) + " |")

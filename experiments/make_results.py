@@ -83,6 +83,12 @@ NOTES = {
     "ablation-warp": "Each network here trains with the warp it is scored with; the "
                      "Pareto section above switches the warp of the shipped weights at "
                      "inference, as the thesis's Table 13 did.",
+    "ablation-theta": "θ weights L_st-linear's temporal term: the temporal error column "
+                      "(θ=1) is what a larger θ buys and PSNR what it costs. The L1 row is "
+                      "the accumulation study's \"with buffer\" run of the same seed "
+                      "(`run_of`). A single seed has no spread: the accumulation and warp "
+                      "studies' seeds spread by 0.06-0.16 dB, and `--seeds 0 1 2` resumes "
+                      "these runs and adds two.",
     "seqlen": "Seconds per step compare rows within one run: the machine may have been "
               "shared (the run shown shared it with a training job).",
 }
