@@ -78,8 +78,8 @@ def variants(study, thetas):
 
 STUDIES = ("accumulation", "warp", "theta")
 
-# The thesis's figures for each study, PSNR dB (and SSIM), with the setting it measured
-# them in: {study: (where and how, {variant label: psnr})}
+# The thesis's PSNR (dB) for each study's variants, with the setting it measured them in:
+# {study: (where and how, {variant label: psnr})}
 THESIS = {
     "accumulation": ("Table 16: 4x on its dataset 1 (at 2x on its dataset 2: 35.89 with, "
                      "35.80 dB without)", {"with buffer": 35.49, "without buffer": 35.23}),

@@ -300,7 +300,7 @@ def test_network_computes_in_its_dtype(formulation):
 
 
 def test_step_labels_its_stages_for_the_profile():
-    """The compiled step's operations carry the stage scopes ``python -m jtus.profile``
+    """The step's operations (its lowered HLO) carry the stage scopes ``python -m jtus.profile``
     splits the time by (``profile.STAGES``: input up-sampling, reprojection, network,
     output). Catches: a renamed scope, whose time the profile would file under "other"."""
     from jtus import profile
