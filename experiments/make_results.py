@@ -86,9 +86,11 @@ NOTES = {
     "ablation-theta": "θ weights L_st-linear's temporal term: the temporal error column "
                       "(θ=1) is what a larger θ buys and PSNR what it costs. The L1 row is "
                       "the accumulation study's \"with buffer\" run of the same seed "
-                      "(`run_of`). A single seed has no spread: the accumulation and warp "
-                      "studies' seeds spread by 0.06-0.16 dB, and `--seeds 0 1 2` resumes "
-                      "these runs and adds two.",
+                      "(`run_of`). A single seed has no spread, and a θ network's score can "
+                      "move between seeds by more than the accumulation and warp studies' "
+                      "0.06-0.16 dB: seed 1 of θ=0.1 and 0.5 has trained since (checkpoints "
+                      "in `experiments/checkpoints/ablation-theta/`), and `--seeds 0 1 2` "
+                      "resumes these runs, trains the rest and writes the table over them.",
     "seqlen": "Seconds per step compare rows within one run: the machine may have been "
               "shared (the run shown shared it with a training job).",
 }
