@@ -21,7 +21,7 @@ that collapsed at 1e-3 too; ``experiments/collapse_probe.py``,
 ``runs/ablation-<study>/<variant>-s<seed>/`` (``ablation-<study>-lr<lr>`` at another
 learning rate; resumed when it exists; a variant that
 trains the same network as one of an earlier study, DLCTUS as the recipe has it, reuses
-that run: ``run_dir``). A run whose
+that run: ``run_of``). A run whose
 network collapsed (``jtus.train.collapsed``: a gradient norm that stays at zero, or a
 validation loss that stops changing) stops training at that epoch, is reported, not
 averaged, and a run with the next unused seed takes its place, up to ``--max-extra``
@@ -143,11 +143,6 @@ def run_of(study, label, changes, base, seed, thetas=()):
     raise ValueError(f"label: {label!r} is not a variant of the {study} study")
 
 
-def run_dir(study, label, changes, base, seed, thetas=()):
-    """The workdir of a variant's run (``run_of``)."""
-    return run_of(study, label, changes, base, seed, thetas)[0]
-
-
 def slug(label):
     return "".join(c if c.isalnum() else "_" for c in label).strip("_").lower()
 
@@ -189,7 +184,7 @@ def runs_so_far(study, lr=LR):
         rows.append(f"| {run} | {len(hist)} of {epochs} | {psnr} | {status} |")
     shared = "" if study == "accumulation" else (
         " The first variant trains the same network as the accumulation study's \"with "
-        "buffer\" runs and reads those (`run_dir`).")
+        "buffer\" runs and reads those (`run_of`).")
     lr_arg = "" if lr == LR else f" --lr {lr:g}"
     return [f"In progress: the runs so far (committed in "
             f"`experiments/checkpoints/{name}/`; `python experiments/ablations.py "

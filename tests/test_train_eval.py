@@ -299,7 +299,7 @@ def test_ablation_studies_build_valid_models():
     for study, expected in (("accumulation", [shared, "without_buffer-s3"]),
                             ("warp", [shared, "bilinear-s3"]),
                             ("theta", [shared, "l_st_linear_θ_0_2-s3", "l_st_linear_θ_0_8-s3"])):
-        dirs = [ablations.run_dir(study, label, ch, base, 3, [0.2, 0.8])
+        dirs = [ablations.run_of(study, label, ch, base, 3, [0.2, 0.8])[0]
                 for label, ch in ablations.variants(study, [0.2, 0.8])]
         assert dirs[0] == shared
         assert [os.path.relpath(d, os.path.join(ablations.ROOT, "runs", f"ablation-{study}"))
@@ -313,9 +313,9 @@ def test_ablation_studies_build_valid_models():
     assert cfg != dataclasses.replace(base, seed=3, **bicubic)
     # at another learning rate the runs (and results) have their own folders
     other = dataclasses.replace(base, lr=1e-3)
-    assert ablations.run_dir("warp", "bilinear", ablations.variants("warp", [])[1][1], other,
-                             3) == os.path.join(ablations.ROOT, "runs",
-                                                "ablation-warp-lr0.001", "bilinear-s3")
+    assert ablations.run_of("warp", "bilinear", ablations.variants("warp", [])[1][1], other,
+                            3)[0] == os.path.join(ablations.ROOT, "runs",
+                                               "ablation-warp-lr0.001", "bilinear-s3")
     assert ablations.study_name("theta", 1e-3) == "ablation-theta-lr0.001"
     # a run's checkpoint goes to experiments/checkpoints/ablation-<study>/<run>/ and back
     work = os.path.join(ablations.ROOT, "runs", "ablation-warp", "bilinear-s4")
