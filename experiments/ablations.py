@@ -39,45 +39,17 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 import sys
 
 import numpy as np
+from common import (LR, ROOT, SAVED, copy_run, run_of, save_runs, saved_dir, slug, study_name,
+                    variants, write)
 
-from common import ROOT, evaluate_videos, write  # noqa: I001  (experiments/ on sys.path)
-from saved_runs import SAVED, copy_run
-
-from jtus import recipe, train
+from jtus import evaluate, recipe, train
 from jtus.config import PRESETS
 
 METRICS = ("psnr", "ssim", "spatial", "temporal")
-LR = 3e-4  # the ablations' learning rate (docstring)
-
-
-def study_name(study, lr=LR):
-    """``ablation-<study>``, with ``-lr<lr>`` at another learning rate than ``LR``: the
-    folder of a study's runs (under ``runs/`` and ``experiments/checkpoints/``) and of
-    its results (under ``docs/results/``)."""
-    return f"ablation-{study}" if lr == LR else f"ablation-{study}-lr{lr:g}"
-
-
-def variants(study, thetas):
-    """``[(label, Config changes)]`` of a study."""
-    if study == "accumulation":
-        return [("with buffer", {}),
-                ("without buffer", {"model_overrides": (("accumulation", False),)})]
-    if study == "warp":
-        return [("bicubic (16 taps, a=-0.75)", {"model_overrides": (("warp", "bicubic"),)}),
-                ("bilinear", {"model_overrides": (("warp", "bilinear"),)})]
-    if study == "theta":
-        return [("L1", {"loss": "l1"})] + [(f"L_st-linear θ={t}", {"loss": "st-linear",
-                                                                   "theta": t}) for t in thetas]
-    raise ValueError(f"study: expected accumulation, warp or theta, got {study!r}")
-
-
-STUDIES = ("accumulation", "warp", "theta")
-
 # The thesis's PSNR (dB) for each study's variants, with the setting it measured them in:
 # {study: (where and how, {variant label: psnr})}
 THESIS = {
@@ -121,79 +93,6 @@ def against_thesis(study, trained):
     return lines
 
 
-def what_trains(cfg):
-    """A run's training with its model overrides resolved: two variants that set model
-    fields to values that are already the defaults train the same network."""
-    return dataclasses.replace(cfg, model_overrides=()), recipe.model_for(cfg).config
-
-
-def run_of(study, label, changes, base, seed, thetas=()):
-    """``(workdir, config)`` of a variant's run: those of the first variant (studies in
-    ``STUDIES`` order) that trains the same network with the same seed. DLCTUS as the
-    recipe has it is the "with buffer", the "bicubic" and the "L1" variant: it trains
-    once, in ``runs/ablation-accumulation/``, with the "with buffer" config (which a
-    resumed run must match exactly), and the warp and θ studies read that run."""
-    key = what_trains(dataclasses.replace(base, seed=seed, **changes))
-    for s in STUDIES[:STUDIES.index(study) + 1]:
-        for lab, ch in variants(s, thetas):
-            cfg = dataclasses.replace(base, seed=seed, **ch)
-            if (s, lab) == (study, label) or what_trains(cfg) == key:
-                return (os.path.join(ROOT, "runs", study_name(s, base.lr),
-                                     f"{slug(lab)}-s{seed}"), cfg)
-    raise ValueError(f"label: {label!r} is not a variant of the {study} study")
-
-
-def slug(label):
-    return "".join(c if c.isalnum() else "_" for c in label).strip("_").lower()
-
-
-def saved_dir(work):
-    """Where a run's checkpoint is kept between sessions (committed)."""
-    study, run = os.path.split(os.path.relpath(work, os.path.join(ROOT, "runs")))
-    return os.path.join(ROOT, "experiments", "checkpoints", study, run)
-
-
-def save_runs(study, lr=LR):
-    """Copy every run of ``study`` that has a checkpoint to its saved directory."""
-    root = os.path.join(ROOT, "runs", study_name(study, lr))
-    for run in sorted(os.listdir(root)) if os.path.isdir(root) else []:
-        work = os.path.join(root, run)
-        if copy_run(work, saved_dir(work)):
-            print(f"saved {os.path.relpath(work, ROOT)} -> "
-                  f"{os.path.relpath(saved_dir(work), ROOT)}")
-
-
-def runs_so_far(study, lr=LR):
-    """Markdown lines on a study's runs before its results exist: each committed run's
-    epochs, last validation PSNR and whether it collapsed (``train.collapsed``)."""
-    name = study_name(study, lr)
-    root = os.path.join(ROOT, "experiments", "checkpoints", name)
-    runs = sorted(os.listdir(root)) if os.path.isdir(root) else []
-    if not runs:
-        return []
-    rows = []
-    for run in runs:
-        with open(os.path.join(root, run, "config.json")) as fh:
-            epochs = json.load(fh)["epochs"]
-        with open(os.path.join(root, run, "metrics.json")) as fh:  # the history train resumes
-            hist = json.load(fh)
-        why = train.collapsed(hist)
-        done = len(hist) >= epochs
-        status = f"collapsed ({why})" if why else "trained" if done else "in training"
-        psnr = f"{hist[-1]['val_psnr']:.2f}" if hist else "-"
-        rows.append(f"| {run} | {len(hist)} of {epochs} | {psnr} | {status} |")
-    shared = "" if study == "accumulation" else (
-        " The first variant trains the same network as the accumulation study's \"with "
-        "buffer\" runs and reads those (`run_of`).")
-    lr_arg = "" if lr == LR else f" --lr {lr:g}"
-    return [f"In progress: the runs so far (committed in "
-            f"`experiments/checkpoints/{name}/`; `python experiments/ablations.py "
-            f"--study {study}{lr_arg}` resumes them and writes the table when all are done)."
-            f"{shared}",
-            "", "| run | epochs | last validation PSNR (dB) | status |",
-            "| --- | --- | --- | --- |", *rows]
-
-
 def run_variant(study, label, changes, base, seeds, max_extra, max_videos, progress,
                 thetas=()):
     """Train ``len(seeds)`` networks that did not collapse (taking further seeds for
@@ -220,7 +119,7 @@ def run_variant(study, label, changes, base, seeds, max_extra, max_videos, progr
                 next_seed += 1
             print(f"{label} seed {seed}: collapsed ({why})", file=sys.stderr)
             continue
-        rec.update(evaluate_videos(recipe.model_for(cfg), params, cfg.dataset, cfg.factor,
+        rec.update(evaluate.video_means(recipe.model_for(cfg), params, cfg.dataset, cfg.factor,
                                    max_videos=max_videos))
         trained.append(rec)
         print(f"{label} seed {seed}: " + ", ".join(f"{k} {rec[k]:.4g}" for k in METRICS),

@@ -26,10 +26,9 @@ import json
 import os
 import sys
 
-from ablations import slug, variants  # noqa: I001  (experiments/ on sys.path)
-from common import ROOT, out_dir, write
+from common import ROOT, out_dir, slug, variants, write
 
-from jtus import train
+from jtus import loading, train
 from jtus.config import PRESETS
 
 
@@ -63,11 +62,11 @@ def saturation(checkpoint_path, dataset, videos=4):
     import jax.numpy as jnp
     import numpy as np
 
-    from jtus import models, recipe, sampling
+    from jtus import recipe, sampling
     from jtus.data.dataset import Dataset
     from jtus.models import dlctus
 
-    params, cfg = models.load_params(checkpoint_path)
+    params, cfg = loading.load_params(checkpoint_path)
     model = recipe.model_for(cfg)
     out = []
     with Dataset(dataset) as ds:
@@ -75,7 +74,8 @@ def saturation(checkpoint_path, dataset, videos=4):
             frames, _ = ds.video("val", name, cfg.factor)
             at = [jax.tree_util.tree_map(lambda x, t=t: jnp.asarray(x[t]), frames)
                   for t in (0, 1)]
-            net_in, _, _ = dlctus.prepare(model.init_state(at[0]), at[1], model.config)
+            pre = dlctus.prepare_frame(at[1], model.config)
+            net_in, _, _ = dlctus.reproject(model.init_state(at[0]), pre, model.config)
             o1 = sampling.pixel_shuffle(dlctus.network(params, net_in, model.config), 4)[..., 0]
             out.append(np.asarray((o1 < 0) | (o1 > 1)).ravel())
     return float(np.concatenate(out).mean())

@@ -24,7 +24,8 @@ not evaluated: its older weights were trained on other data.
 
 Each cell is PSNR (dB) / SSIM / temporal error (L_st-linear's temporal term, θ=1).
 Below the tables, the issue's targets with their measured margins. Writes
-``docs/results/comparison-table/result.{md,json}``.
+``docs/results/comparison-table/result.{md,json}`` and ``readme.md`` (PSNR only, the
+README's table; ``--readme-only`` rewrites it from ``result.json``).
 """
 
 from __future__ import annotations
@@ -34,11 +35,10 @@ import csv
 import json
 import os
 
-from common import ROOT, command_line, weights_path, write  # noqa: I001  (experiments/ on sys.path)
-from external.evaluate_external import evaluate_clips
-from training_summary import SYSTEMS, find, summarize
+from common import (ROOT, SYSTEMS, command_line, evaluate_clips, find, summarize, weights_path,
+                    write)
 
-from jtus import evaluate, models
+from jtus import evaluate, loading
 
 RESULTS = os.path.join(ROOT, "docs", "results")  # where --only reads the earlier result
 
@@ -56,14 +56,26 @@ def budget(cfg, rows):
             "seconds": s["seconds"]}
 
 
-def systems(factor):
-    """``[(label, spec or None, status, budget or None)]`` for every system at ``factor``."""
+# the thesis's released checkpoints (for comparison only: never shipped, never trained
+# on), as its README names them, under --thesis
+THESIS = {4: os.path.join("MasterNet4x4", "modelMaster.pt"),
+          2: os.path.join("MasterNet2x2", "modelMaster_best.pt")}
+
+
+def systems(factor, thesis_dir=None):
+    """``[(label, spec or None, status, budget or None)]`` for every system at ``factor``;
+    the thesis's released model as a row when ``thesis_dir`` holds it."""
     out = [("jau", "jau", "-", None), ("tus", "tus", "-", None)]
+    if thesis_dir:
+        path = os.path.join(thesis_dir, THESIS[factor])
+        out.append(("thesis", f"thesis={path}" if os.path.exists(path) else None,
+                    "released (Sponza, 200 epochs at crop 256)" if os.path.exists(path)
+                    else f"not found under {thesis_dir}", None))
     with open(os.path.join(ROOT, "jtus", "weights", f"dlctus-x{factor}.json")) as fh:
         cfg = json.load(fh)
     with open(os.path.join(ROOT, "jtus", "weights", f"dlctus-x{factor}-training.csv")) as fh:
         rows = list(csv.DictReader(fh))
-    out.append(("dlctus", f"dlctus={models.shipped_path(factor)}", "shipped",
+    out.append(("dlctus", f"dlctus={loading.shipped_path(factor)}", "shipped",
                 budget(cfg, rows)))
     for m in SYSTEMS:
         got = find(m, factor, ROOT)
@@ -123,6 +135,38 @@ def targets(results):
     return out
 
 
+def readme_table(results):
+    """The README's one table: PSNR (dB) of every system on every family at both
+    factors, from ``result.json``."""
+    fams = [fam for fam in FAMILIES if any(fam in results.get(f, {}) for f in ("4", "2"))]
+    factors = [f for f in ("4", "2") if f in results]
+    found = set(lab for f in factors for fam in fams for lab in results[f].get(fam, {}))
+    order = ("jau", "tus", "thesis", "dlctus") + SYSTEMS
+    labels = [lab for lab in order if lab in found] + sorted(found - set(order))
+    short = {"random": "random scenes", "handmade": "hand-made", "external": "Mitsuba 3"}
+    head = [f"{f}x {short[fam]}" for f in factors for fam in fams]
+    lines = ["| system | " + " | ".join(head) + " |", "| --- " * (len(head) + 1) + "|"]
+    for lab in labels:
+        cells = [results[f].get(fam, {}).get(lab) for f in factors for fam in fams]
+        lines.append(f"| {lab} | " + " | ".join(f"{c['psnr']:.2f}" if c else "-"
+                                                  for c in cells) + " |")
+    return "\n".join(lines)
+
+
+def write_readme_table(name, results=None):
+    """``docs/results/<name>/readme.md`` from ``results`` (default: that folder's
+    ``result.json``)."""
+    d = os.path.join(RESULTS, name)
+    if results is None:
+        with open(os.path.join(d, "result.json")) as fh:
+            results = json.load(fh)
+    table = readme_table(results)
+    os.makedirs(d, exist_ok=True)
+    with open(os.path.join(d, "readme.md"), "w") as fh:
+        fh.write(table + "\n")
+    return table
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -134,7 +178,15 @@ def main(argv=None):
     p.add_argument("--only", nargs="+", metavar="SYSTEM",
                    help="evaluate only these systems; the other rows come from the existing "
                         "result.json")
+    p.add_argument("--thesis", default=os.path.join(ROOT, "..", "shared", "thesis"),
+                   help="folder of the thesis's released checkpoints (a row when present; "
+                        "'' for none)")
+    p.add_argument("--readme-only", action="store_true",
+                   help="only rewrite readme.md (the README's table) from result.json")
     args = p.parse_args(argv)
+    if args.readme_only:
+        print(write_readme_table(args.name))
+        return
     old = {}
     if args.only:
         path = os.path.join(RESULTS, args.name, "result.json")
@@ -151,13 +203,13 @@ def main(argv=None):
             p.error(f"--families {fam}: {path} is missing (see this script's docstring)")
     results, lines, command = {}, [], command_line()
     for f in args.factors:
-        rows = systems(f)
+        rows = systems(f, args.thesis)
         if args.only:
             unknown = set(args.only) - {lab for lab, spec, _, _ in rows if spec}
             if unknown:
                 p.error(f"--only: no weights to evaluate for {sorted(unknown)} at {f}x")
         todo = [spec for lab, spec, _, _ in rows if spec and (not args.only or lab in args.only)]
-        entries = models.load_all(todo, f)
+        entries = loading.load_all(todo, f)
         res = results[str(f)] = {fam: score(entries, fam, f, args.data_root)
                                  for fam in args.families}
         made = res["made_by"] = {e.label: command for e in entries}
@@ -196,6 +248,7 @@ def main(argv=None):
         note += "\n\nRows carried over from earlier runs (`--only`): " + "; ".join(
             f"{f}x {lab}: `{c}`" for (f, lab), c in sorted(carried.items())) + "."
     write(args.name, "\n".join(lines), results, note=note)
+    write_readme_table(args.name, results)
 
 
 if __name__ == "__main__":

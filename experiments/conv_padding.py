@@ -16,18 +16,14 @@ checked equal first.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
-
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from common import write
 
-from common import write  # noqa: E402
-
-from jtus import bench
+from jtus import timing
 from jtus.models import layers
 
 
@@ -89,7 +85,7 @@ def main(argv=None):
 
         f = jax.jit(trunk)
         fns[name] = lambda f=f: f(x).block_until_ready()
-    sec = bench.timeit_round_robin(fns, args.repeats)  # in turn: ratios from one machine
+    sec = timing.timeit_round_robin(fns, args.repeats)  # in turn: ratios from one machine
     base = sec[next(iter(sec))]
     rows = [f"| {name} | {1e3 * s:.1f} | {s / base:.2f}x |" for name, s in sec.items()]
     data = [{"padding": name, "ms": 1e3 * s, "vs_zero": s / base} for name, s in sec.items()]

@@ -13,22 +13,18 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
-
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from common import write
 
-from jtus import models, recipe, rollout
+from jtus import loading, recipe, rollout
 from jtus.data.dataset import Dataset
-
-from common import write  # noqa: E402
 
 
 def gradient_norms(workdir, seed=1):
-    params, cfg = models.load_params(os.path.join(workdir, "checkpoint.msgpack"))
+    params, cfg = loading.load_params(os.path.join(workdir, "checkpoint.msgpack"))
     model, loss_fn = recipe.model_for(cfg), recipe.loss_for(cfg)
     plan = recipe.plan(cfg)
     window, loss_frames = plan.window, plan.loss_frames

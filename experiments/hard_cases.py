@@ -18,10 +18,9 @@ import argparse
 import jax
 import jax.numpy as jnp
 import numpy as np
+from common import write
 
-from common import write  # noqa: I001  (experiments/ is on sys.path when run as a script)
-
-from jtus import metrics, models, rollout, sim
+from jtus import loading, metrics, rollout, sim
 from jtus.sampling.jitter import VARIETY
 from jtus.sim.video import static_hold
 
@@ -42,7 +41,7 @@ def main():
     scene = sim.get_scene("textures")
     rows, data = [], []
     for factor in (4, 2):
-        entries = models.load_all(args.models, factor)
+        entries = loading.load_all(args.models, factor)
         for jit in VARIETY:
             frames, targets = static_hold(scene, args.size, factor, jit, args.frames)
             for e in entries:

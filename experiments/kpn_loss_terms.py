@@ -12,19 +12,15 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
-import sys
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from common import write
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-
-from common import write  # noqa: E402
-
-from jtus import losses, models, recipe, rollout  # noqa: E402
-from jtus.config import PRESETS  # noqa: E402
-from jtus.data.dataset import Dataset  # noqa: E402
+from jtus import loading, losses, recipe, rollout
+from jtus.config import PRESETS
+from jtus.data.dataset import Dataset
 
 TERMS = ("reference", "gradient", "temporal")
 
@@ -53,9 +49,9 @@ def main(argv=None):
     args = p.parse_args(argv)
     config = dataclasses.replace(PRESETS["diverse"], model="kpn", loss="kpn", factor=4,
                                  crop=64, seq_len=8, mode="bptt", loss_frames=1)
-    rows = [("initialized", terms(config, recipe.init_params(config)))]
+    rows = [("initialized", terms(config, loading.init_params(config)))]
     if args.workdir:
-        params, _ = models.load_params(os.path.join(args.workdir, "checkpoint.msgpack"))
+        params, _ = loading.load_params(os.path.join(args.workdir, "checkpoint.msgpack"))
         rows.append((f"trained ({args.workdir})", terms(config, params)))
     lines = ["| parameters | " + " | ".join(TERMS) + " | reference / temporal |",
              "| --- | --- | --- | --- | --- |"]

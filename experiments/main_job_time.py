@@ -18,7 +18,7 @@ import sys
 import tempfile
 import time
 
-from common import write  # noqa: I001  (experiments/ is on sys.path as a script)
+from common import write
 
 
 def timed(argv, cwd):

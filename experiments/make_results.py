@@ -16,8 +16,7 @@ import os
 import subprocess
 import sys
 
-from ablations import runs_so_far
-from common import RESULTS, ROOT  # noqa: E402
+from common import RESULTS, ROOT, runs_so_far
 
 SECTIONS = [
     ("comparison-table", "Every system on the three test families (randomized scenes, "

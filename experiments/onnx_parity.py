@@ -19,8 +19,7 @@ import tempfile
 import jax
 import jax.numpy as jnp
 import numpy as np
-
-from common import write  # noqa: I001  (experiments/ on sys.path)
+from common import write
 
 from jtus import export
 from jtus.frame import Frame
@@ -51,7 +50,7 @@ def parity(factor, frames, h, w, weights="shipped"):
         export.main(["--model", weights, "--factor", str(factor), "--format", "onnx",
                      "--size", str(h), str(w), "--out", path, "--force"])
         sess = ort.InferenceSession(path, providers=["CPUExecutionProvider"])
-    model, params = export.load_dlctus(weights, factor)
+    model, params = export.load_exportable(weights, factor)[:2]
     step = jax.jit(model.step)
     hist = np.zeros((1, h, w, 4), np.float32)
     state = dlctus.State(jnp.asarray(hist))

@@ -21,9 +21,9 @@ import argparse
 import os
 
 import numpy as np
-from common import ROOT, WARPS, evaluate_videos, weights_path, write  # noqa: E402
+from common import ROOT, WARPS, weights_path, write
 
-from jtus import bench, models
+from jtus import bench, evaluate, loading, models
 
 DTYPES = ("float32", "bfloat16", "float16")
 LEARNED = ("nsrr", "nsrr-fast", "kpn", "mlp")  # scored with experiments/weights/
@@ -77,7 +77,7 @@ def main(argv=None):
         if "=" not in c:
             p.error(f"--checkpoint: expected NAME=PATH, got {c!r}")
         ckpts.update([c.split("=", 1)])
-    shipped = models.load("shipped", args.factor)
+    shipped = loading.load("shipped", args.factor)
     rows = []
     for name, over in _variants():
         rec = {"label": _label(name, over), "model": name}
@@ -93,11 +93,11 @@ def main(argv=None):
         if name == "dlctus" and shipped is not None:
             params = shipped.params
         elif name in ckpts:
-            params = models.load(f"{name}={ckpts[name]}", args.factor).params
+            params = loading.load(f"{name}={ckpts[name]}", args.factor).params
         elif name in ("jau", "jau-bicubic", "tus", "tus-clip"):
             params = {}
         if params is not None:
-            rec.update(evaluate_videos(model, params, args.dataset, args.factor,
+            rec.update(evaluate.video_means(model, params, args.dataset, args.factor,
                                        max_videos=args.max_videos, videos=args.videos))
         rows.append(rec)
         print(rec)

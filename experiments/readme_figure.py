@@ -35,10 +35,9 @@ import os
 import jax
 import jax.numpy as jnp
 import numpy as np
+from common import ROOT, weights_path, write
 
-from common import ROOT, weights_path, write  # noqa: I001  (experiments/ is on sys.path as a script)
-
-from jtus import metrics, models, rollout, sampling, sim
+from jtus import loading, metrics, rollout, sampling, sim
 from jtus.frame import Frame
 from jtus.sim.video import static_hold
 
@@ -109,7 +108,7 @@ def main(argv=None):
                 f"got {args.size}")
     best = args.best or best_on_validation(args.factor)
     print(f"comparison system: {best}", flush=True)
-    entries = models.load_all(["tus", "shipped", best], args.factor)
+    entries = loading.load_all(["tus", "shipped", best], args.factor)
     labels = ["input"] + [e.label for e in entries] + ["reference"]
     grid, data, rows = [], [], []
     for case, scene, rule in CASES:

@@ -10,24 +10,9 @@ exits 0 when ``SRC`` had a checkpoint and was copied, 1 when it had none (nothin
 
 from __future__ import annotations
 
-import os
-import shutil
 import sys
 
-SAVED = ("checkpoint.msgpack", "config.json", "metrics.json", "metrics.csv")
-
-
-def copy_run(src, dst):
-    """Copy a run's files (those of ``SAVED`` that exist) from ``src`` to ``dst``; True
-    if it had a checkpoint, False (and nothing copied) if not."""
-    if not os.path.exists(os.path.join(src, SAVED[0])):
-        return False
-    os.makedirs(dst, exist_ok=True)
-    for name in SAVED:
-        if os.path.exists(os.path.join(src, name)):
-            shutil.copy2(os.path.join(src, name), os.path.join(dst, name))
-    return True
-
+from common import copy_run
 
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else argv

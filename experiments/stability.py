@@ -19,11 +19,10 @@ import os
 import jax
 import jax.numpy as jnp
 import numpy as np
-from common import WARPS, write  # noqa: E402
+from common import WARPS, write
 
-from jtus import metrics, models, rollout, sampling
+from jtus import loading, metrics, models, rollout, sampling
 from jtus.frame import Frame
-
 
 
 def moving_texture_video(frames, size, factor, speed=(0.37, 0.11)):
@@ -93,7 +92,7 @@ def main(argv=None):
     p.add_argument("--factor", type=int, default=4)
     args = p.parse_args(argv)
     frames, targets = moving_texture_video(args.frames, args.size, args.factor)
-    shipped = models.load("shipped", args.factor)
+    shipped = loading.load("shipped", args.factor)
     rows, curves = [], {}
     marks = [m for m in (100, 1000, args.frames) if m <= args.frames]
     for system in ("tus", "dlctus"):

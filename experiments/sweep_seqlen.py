@@ -26,11 +26,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-from common import ROOT, write  # noqa: E402
+from common import ROOT, write
 
-from jtus import metrics, recipe, rollout, train
+from jtus import evaluate, metrics, recipe, rollout, train
 from jtus.config import PRESETS
 from jtus.data.dataset import Dataset
+from jtus.sim import generate
 
 MODES = ("bptt", "tbptt", "bptt+remat")
 
@@ -73,7 +74,7 @@ def main(argv=None):
     args = p.parse_args(argv)
     base = dataclasses.replace(PRESETS["default"], factor=args.factor, crop=args.crop,
                                batch=args.batch, dataset=args.dataset, data_preset="long")
-    recipe.ensure_dataset(base, progress=sys.stderr.isatty())
+    generate.ensure_dataset(base.dataset, base.data_preset, progress=sys.stderr.isatty())
     long_frames, long_targets = jax.tree_util.tree_map(
         jnp.asarray, _long_video(args.factor, args.long_frames, args.long_size))
     rows = []
@@ -104,8 +105,7 @@ def main(argv=None):
                     stats["loss"].block_until_ready()
                     if i > 0:
                         times.append(time.perf_counter() - t0)
-                from common import evaluate_videos
-                q = evaluate_videos(model, ts.params, args.dataset, args.factor,
+                q = evaluate.video_means(model, ts.params, args.dataset, args.factor,
                                     max_videos=args.max_videos)
             outs = rollout.video(model, ts.params, long_frames, check=False)
             tail = slice(-20, None)

@@ -13,9 +13,9 @@ import dataclasses
 import os
 import sys
 
-from common import ROOT, evaluate_videos, l1_recipe, write  # noqa: E402
+from common import ROOT, l1_recipe, write
 
-from jtus import recipe, train
+from jtus import evaluate, recipe, train
 
 
 def main(argv=None):
@@ -38,8 +38,8 @@ def main(argv=None):
         work = os.path.join(ROOT, "runs", "sweep_theta", label.replace(" ", "_").replace("=", ""))
         params, _ = train.train_and_evaluate(config, work, resume=True,
                                               progress=sys.stderr.isatty())
-        rows[label] = evaluate_videos(recipe.model_for(config), params, args.dataset, args.factor,
-                                      max_videos=args.max_videos)
+        rows[label] = evaluate.video_means(recipe.model_for(config), params, args.dataset,
+                                           args.factor, max_videos=args.max_videos)
     table = ["| loss | L_st-linear θ=0 (spatial) | L_st-linear θ=1 (temporal) | PSNR (dB) | SSIM |",
              "| --- | --- | --- | --- | --- |"]
     for label, r in rows.items():

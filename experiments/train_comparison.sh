@@ -62,12 +62,12 @@ for m in ${ONLY:-mlp kpn nsrr-fast nsrr}; do
     python -m jtus.train $common ${args[$m]} ${override[$m-$f]:-} --factor "$f" --workdir "$wd" $resume
     python - "$wd" "$m" "$f" <<'EOF'
 import json, sys
-from jtus import recipe
+from jtus import loading
 wd, m, f = sys.argv[1:]
 cfg = json.load(open(f"{wd}/config.json"))
 hist = json.load(open(f"{wd}/metrics.json"))
 if hist and hist[-1]["epoch"] >= cfg["epochs"]:
-    recipe.export_params(wd, f"experiments/weights/{m}-x{f}")
+    loading.export_params(wd, f"experiments/weights/{m}-x{f}")
     print(f"exported {wd} -> experiments/weights/{m}-x{f}.msgpack")
 EOF
   done

@@ -26,8 +26,7 @@ import sys
 
 import numpy as np
 
-from jtus import bench
-
+from jtus import bench, timing
 
 VARIANTS = {  # name -> train_workload overrides
     "plain scan": {"hoist": False},
@@ -107,9 +106,9 @@ def main(argv=None):
         mem[name] = (m.temp_size_in_bytes + m.argument_size_in_bytes
                      + m.output_size_in_bytes) / 2 ** 20
     if not args.no_torch:
-        fns["PyTorch"] = bench.torch_train(*w)
+        fns["PyTorch"] = bench.torch_reference("dlctus").train_workload(*w)
     print(f"timing {len(fns)} variants x {args.repeats}", file=sys.stderr)
-    sec = bench.timeit_round_robin(fns, args.repeats)
+    sec = timing.timeit_round_robin(fns, args.repeats)
     frames = args.batch * args.seq
     base = sec["plain scan"] if "plain scan" in sec else None
     rows = [{"variant": k, "s_per_step": v, "frames_per_s": frames / v,
@@ -120,7 +119,7 @@ def main(argv=None):
     for spec in args.shapes:
         b, c = (int(x) for x in spec.split("x"))
         run, _, _ = bench.train_workload(args.factor, c, b, args.seq, args.loss_frames)
-        s = bench.timeit(run, max(3, args.repeats // 2))
+        s = timing.timeit(run, max(3, args.repeats // 2))
         shapes.append({"batch": b, "crop": c, "s_per_step": s, "frames_per_s": b * args.seq / s,
                        "mpix_per_s": b * args.seq * c * c / s / 1e6})
         print(f"  {spec}: {s:.3f} s/step", file=sys.stderr)
@@ -128,11 +127,11 @@ def main(argv=None):
     for name in args.comparison:
         pair = {"custom": comparison_step(name, args.factor, 64, 4, 8, 8),
                 "autodiff": comparison_step(name, args.factor, 64, 4, 8, 8, fast=False)}
-        t = bench.timeit_round_robin(pair, max(3, args.repeats // 2))
+        t = timing.timeit_round_robin(pair, max(3, args.repeats // 2))
         comp.append({"model": name, "custom_s": t["custom"], "autodiff_s": t["autodiff"]})
         print(f"  {name}: custom {t['custom']:.3f} s, autodiff {t['autodiff']:.3f} s",
               file=sys.stderr)
-    report = {"hardware": bench.hardware(), "command": "python experiments/train_speed.py "
+    report = {"hardware": timing.hardware(), "command": "python experiments/train_speed.py "
               + shlex.join(argv if argv is not None else sys.argv[1:]),
               "workload": dict(zip(("factor", "crop", "batch", "seq", "loss_frames"), w)),
               "rows": rows, "shapes": shapes, "comparison": comp}

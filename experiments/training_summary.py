@@ -13,61 +13,10 @@ diverse-x<f>/metrics.csv``, when it is the longer log) and writes a markdown tab
 from __future__ import annotations
 
 import argparse
-import csv
-import json
 import os
 import sys
 
-SYSTEMS = ("mlp", "kpn", "nsrr-fast", "nsrr")
-FACTORS = (4, 2)
-
-
-def summarize(rows, epochs_planned):
-    """One run's figures from its ``metrics.csv`` rows."""
-    psnr = [float(r["val_psnr"]) for r in rows]
-    n = len(rows)
-    first_of_last_fifth = max(n - max(n // 5, 1) - 1, 0)
-    delta = psnr[-1] - psnr[first_of_last_fifth]
-    return {"epochs": n, "planned": epochs_planned, "steps": int(rows[-1]["step"]),
-            "seconds": sum(float(r["seconds"]) for r in rows), "first": psnr[0],
-            "best": max(psnr), "last": psnr[-1], "last_fifth": delta,
-            "flat": n == epochs_planned and abs(delta) < 0.1}
-
-
-def find(model, factor, root="."):
-    """``(rows, planned epochs, source)`` of the newest log of a run, or None."""
-    cands = []
-    for csv_path, cfg_path in (
-            (f"experiments/checkpoints/{model}-diverse-x{factor}/metrics.csv",
-             f"experiments/checkpoints/{model}-diverse-x{factor}/config.json"),
-            (f"experiments/weights/{model}-x{factor}-training.csv",
-             f"experiments/weights/{model}-x{factor}.json")):
-        p, c = os.path.join(root, csv_path), os.path.join(root, cfg_path)
-        if os.path.exists(p) and os.path.exists(c):
-            with open(p) as fh:
-                rows = list(csv.DictReader(fh))
-            with open(c) as fh:
-                cfg = json.load(fh)
-            cfg = cfg.get("config", cfg)
-            if rows and cfg.get("dataset", "").endswith("diverse.h5"):
-                # the longer log is the newer (a run only grows; file times mean nothing
-                # in a fresh clone), the exported one on a tie (it is the finished run)
-                cands.append(((len(rows), "weights/" in csv_path), rows, cfg["epochs"],
-                              csv_path))
-    if not cands:
-        return None
-    _, rows, planned, src = max(cands, key=lambda c: c[0])
-    return rows, planned, src
-
-
-def finished(model, factor, epochs, root="."):
-    """True if the run's exported log (``experiments/weights/``) is of the ``diverse``
-    data and reaches ``epochs``: a finished run, on any machine, with nothing to resume
-    or retrain."""
-    got = find(model, factor, root)
-    return (got is not None and got[2].startswith("experiments/weights/")
-            and int(got[0][-1]["epoch"]) >= epochs)
-
+from common import FACTORS, SYSTEMS, find, finished, summarize
 
 def table(root="."):
     lines = ["| system | factor | epochs (of) | Adam steps | training s | val PSNR first / best / "

@@ -23,7 +23,9 @@ import os
 import shutil
 
 import jax
+import jax.numpy as jnp
 import numpy as np
+from flax import serialization
 
 from jtus.files import atomic_path
 
@@ -34,8 +36,6 @@ METRICS = "metrics.json"
 def save_train_state(workdir, ts, epoch, history):
     """Atomically write ``checkpoint.msgpack`` (epoch, and the train state's step,
     params and opt_state) and ``metrics.json`` (``history``)."""
-    from flax import serialization
-
     payload = serialization.to_bytes({"epoch": epoch, "step": ts.step, "params": ts.params,
                                       "opt_state": ts.opt_state})
     with atomic_path(os.path.join(workdir, CHECKPOINT)) as tmp:
@@ -49,9 +49,6 @@ def save_train_state(workdir, ts, epoch, history):
 def restore_train_state(workdir, ts):
     """``(train state, epoch, history)`` from ``workdir``, restored into the structure
     of ``ts`` (a NamedTuple with ``step``, ``params``, ``opt_state``)."""
-    import jax.numpy as jnp
-    from flax import serialization
-
     path = os.path.join(workdir, CHECKPOINT)
     with open(path, "rb") as fh:
         data = fh.read()
@@ -75,8 +72,6 @@ def read_params(path, template, what):
     ``template``; ``ValueError`` naming the file and the parameter when the file is
     unreadable, the structure differs, a leaf has another shape or a non-float dtype,
     or holds NaN/Inf. ``what`` names the model in messages ("dlctus at 4x")."""
-    from flax import serialization
-
     try:
         with open(path, "rb") as fh:
             raw = serialization.msgpack_restore(fh.read())
@@ -106,8 +101,6 @@ def write_params(out_base, params, config_json, training_csv=None):
     """Write ``out_base.msgpack`` (parameters alone), ``out_base.json`` (the run
     config, ``jtus.config.to_json``) and, given a per-epoch CSV, a copy as
     ``out_base-training.csv``; each atomically. Returns the ``.msgpack`` path."""
-    from flax import serialization
-
     os.makedirs(os.path.dirname(os.path.abspath(out_base)), exist_ok=True)
     with atomic_path(out_base + ".msgpack") as tmp:
         with open(tmp, "wb") as fh:

@@ -15,6 +15,11 @@ import math
 from jtus import losses, rollout
 from jtus.files import read_json_fields
 
+# --remat's names -> Config.remat: rematerialization of the scanned step trades time for
+# memory (docs/performance.md, "Memory")
+REMAT_CHOICES = {"none": False, "full": True, **{k: k for k in rollout.REMAT_POLICIES},
+                 "reverse": "reverse"}
+
 
 @dataclasses.dataclass(frozen=True)
 class Config:
@@ -28,7 +33,8 @@ class Config:
     mode: str = "bptt"          # bptt | tbptt
     k1: int = 4
     k2: int = 8
-    remat: bool = False
+    remat: bool | str = False   # False, True (full), a rollout.REMAT_POLICIES name, "reverse"
+    hoist: bool = False         # the model's per-frame preparation before the scan
     batch: int = 4
     crop: int = 64
     lr: float = 1e-3
@@ -48,6 +54,8 @@ class Config:
     model_overrides: tuple = ()   # (("warp", "bilinear"), ...) for the model's config
     init_from: str = ""           # start from these parameters (a checkpoint of the same
                                   # model and factor); the optimizer starts fresh
+    test_videos: int = 0          # the final comparison: the first this many test videos
+                                  # of each family; 0 = all
 
     def __post_init__(self):
         positive = ("factor", "seq_len", "batch", "crop", "epochs", "steps_per_epoch",
@@ -79,6 +87,11 @@ class Config:
             rollout.tbptt_windows(self.seq_len, self.k1, self.k2)
         if self.schedule not in ("constant", "cosine"):
             raise ValueError(f"schedule: expected constant or cosine, got {self.schedule!r}")
+        if self.remat not in REMAT_CHOICES.values():
+            raise ValueError(f"remat: expected one of {tuple(REMAT_CHOICES.values())}, got "
+                             f"{self.remat!r}")
+        if not isinstance(self.test_videos, int) or self.test_videos < 0:
+            raise ValueError(f"test_videos: expected an integer >= 0, got {self.test_videos!r}")
         if self.loss not in losses.NAMES:
             raise ValueError(f"loss: expected one of {losses.NAMES}, got {self.loss!r}")
 
@@ -88,8 +101,9 @@ PRESETS = {
     "tiny": Config(factor=4, seq_len=4, loss_frames=2, batch=2, crop=16, epochs=2,
                    steps_per_epoch=2, val_batches=1, val_videos=1, dataset="data/tiny.h5",
                    data_preset="tiny"),
-    # minutes on 2 CPU cores, on the built-in default data
-    "default": Config(),
+    # minutes on 2 CPU cores, on the built-in default data; the final comparison on 4
+    # test videos
+    "default": Config(test_videos=4),
     # thesis sec. 4.3: 256 crops, batch 4, sequence 30, loss on the last 5, Adam 1e-4,
     # 200 epochs; for a GPU machine and the paper-size data
     "paper": Config(seq_len=30, loss_frames=5, batch=4, crop=256, lr=1e-4, epochs=200,

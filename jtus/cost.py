@@ -10,7 +10,10 @@ intermediate network tensor, the traffic of an unfused implementation.
 
 from __future__ import annotations
 
+import argparse
 import sys
+
+import jax
 
 from jtus import models
 from jtus.models.base import Cost
@@ -25,7 +28,6 @@ def cost(model_name, config, H, W) -> Cost:
 def table(names=None, factors=(4, 2), height=1080, width=1920) -> str:
     """A markdown table of parameters, FLOPs and bytes per output pixel and per frame
     (the layout of Table 2 of Herveau et al.)."""
-    import jax
 
     names = names or models.NAMES
     lines = [f"Per output pixel and per {width}x{height} frame, float32 "
@@ -47,8 +49,6 @@ def table(names=None, factors=(4, 2), height=1080, width=1920) -> str:
 
 
 def main(argv=None):
-    import argparse
-
     p = argparse.ArgumentParser(prog="python -m jtus.cost",
                                 description="FLOPs and bytes per output pixel of every model.")
     p.add_argument("--models", nargs="+", default=list(models.NAMES), choices=models.NAMES)

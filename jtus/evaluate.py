@@ -13,7 +13,7 @@ covers a model trained per factor. Every video starts from a fresh state.
 
 As a library: ``evaluate.run(specs, dataset, factors, out)`` returns the summary
 (``train`` calls it after training); ``video_metrics`` is the per-video measurement
-training validates with. Models come from ``jtus.models.load``.
+training validates with. Models come from ``jtus.loading.load``.
 
 Writes into ``--out``: ``results.md`` (per factor: PSNR / SSIM / temporal error per
 method, thesis Table 2 layout), ``results.json``, ``per_frame_x{f}.png`` (PSNR and SSIM
@@ -34,10 +34,17 @@ import sys
 import jax
 import jax.numpy as jnp
 import numpy as np
+from matplotlib.figure import Figure
+from PIL import Image
 from tqdm import tqdm
 
-from jtus import losses, metrics, models, rollout
+from jtus import cli, loading, losses, metrics, rollout
+from jtus.config import PRESETS
 from jtus.data.dataset import Dataset
+from jtus.data.exr import linear_to_srgb
+from jtus.files import check_out_folder
+from jtus.sim.generate import ensure_dataset
+
 
 def frame_metrics(factor):
     """Per-frame PSNR, SSIM, spatial error (L_st-linear at θ=0) and temporal error
@@ -71,10 +78,11 @@ def video_metrics(model, params, frames, targets, factor):
 
 def evaluate(entries, dataset_path, factor, split="test", max_videos=None, progress=True,
              videos=None):
-    """``{label: {"psnr": [...], "ssim": [...], "temporal": [...]}}`` per frame, all
-    videos concatenated, plus the video names. ``videos``: a shell-style pattern of
-    the video names to take (``random_*`` for the randomized test family)."""
-    out = {e.label: {"psnr": [], "ssim": [], "temporal": []} for e in entries}
+    """``{label: {"psnr": [...], "ssim": [...], "spatial": [...], "temporal": [...]}}``
+    per frame (``frame_metrics``), all videos concatenated, plus the video names.
+    ``videos``: a shell-style pattern of the video names to take (``random_*`` for the
+    randomized test family)."""
+    out = {e.label: {} for e in entries}
     with Dataset(dataset_path) as ds:
         names = ds.videos(split)
         if videos:
@@ -88,15 +96,26 @@ def evaluate(entries, dataset_path, factor, split="test", max_videos=None, progr
             frames, targets = jax.tree_util.tree_map(jnp.asarray, (frames, targets))
             for e in entries:
                 m = video_metrics(e.model, e.params, frames, targets, factor)
-                for k in out[e.label]:
-                    out[e.label][k].append(m[k])
+                for k, v in m.items():
+                    out[e.label].setdefault(k, []).append(v)
     res = {lab: {k: np.concatenate(v) for k, v in d.items()} for lab, d in out.items()}
     return res, names
 
 
 def summarize(per_frame):
-    return {lab: {"psnr": float(np.mean(d["psnr"])), "ssim": float(np.mean(d["ssim"])),
-                  "temporal": float(np.nanmean(d["temporal"]))} for lab, d in per_frame.items()}
+    """Means over every frame of ``evaluate``'s per-frame metrics (the temporal error,
+    undefined on first frames, over the frames that have it)."""
+    return {lab: {k: float(np.nanmean(v)) for k, v in d.items()}
+            for lab, d in per_frame.items()}
+
+
+def video_means(model, params, dataset_path, factor, split="test", max_videos=None,
+                videos=None, progress=False):
+    """``summarize`` of one model with ``params`` over the videos ``evaluate`` takes:
+    ``{"psnr", "ssim", "spatial", "temporal"}``."""
+    per_frame, _ = evaluate([loading.Entry("m", model, params)], dataset_path, factor, split,
+                            max_videos, progress, videos)
+    return summarize(per_frame)["m"]
 
 
 def markdown(summary_by_factor):
@@ -110,11 +129,8 @@ def markdown(summary_by_factor):
 
 
 def plot_per_frame(per_frame, path, factor):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(2, 1, figsize=(11, 5), sharex=True)
+    fig = Figure(figsize=(11, 5))
+    ax = fig.subplots(2, 1, sharex=True)
     for lab, d in per_frame.items():
         ax[0].plot(d["psnr"], label=lab, lw=1)
         ax[1].plot(d["ssim"], label=lab, lw=1)
@@ -127,15 +143,11 @@ def plot_per_frame(per_frame, path, factor):
         a.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
-    plt.close(fig)
 
 
 def crop_grid(entries, dataset_path, factor, path, split="test", crop=64, rows=3):
     """Rows of crops (the region of most detail in the middle frame of a video):
     input (nearest-enlarged), each method, reference."""
-    from PIL import Image
-
-    from jtus.data.exr import linear_to_srgb
 
     tiles = []
     with Dataset(dataset_path) as ds:
@@ -187,7 +199,7 @@ def _parser():
 
 def run(specs, dataset, factors=None, out=None, split="test", max_videos=None, videos=None,
         crops=True, progress=True, command=None):
-    """Evaluate model ``specs`` (``models.load``) on ``split`` of ``dataset`` at each
+    """Evaluate model ``specs`` (``loading.load``) on ``split`` of ``dataset`` at each
     of ``factors`` (default: every factor in the data). Returns ``{factor: {label:
     {"psnr", "ssim", "temporal"}}}``; with ``out``, writes ``results.md``,
     ``results.json``, ``per_frame_x{f}.png`` and (``crops``) ``crops_x{f}.png``."""
@@ -196,12 +208,11 @@ def run(specs, dataset, factors=None, out=None, split="test", max_videos=None, v
     with Dataset(dataset) as ds:
         factors = list(factors or ds.factors)
     if out:
-        from jtus.files import check_out_folder
         check_out_folder(out)
         os.makedirs(out, exist_ok=True)
     summary, legends, names = {}, {}, []
     for f in factors:
-        entries = models.load_all(specs, f)
+        entries = loading.load_all(specs, f)
         per_frame, names = evaluate(entries, dataset, f, split, max_videos, progress=progress,
                                     videos=videos)
         summary[f] = summarize(per_frame)
@@ -224,14 +235,11 @@ def run(specs, dataset, factors=None, out=None, split="test", max_videos=None, v
 
 
 def main(argv=None):
-    from jtus.config import PRESETS
-    from jtus.recipe import ensure_dataset
-
     args = _parser().parse_args(argv)
     cmd = "python -m jtus.evaluate " + " ".join(argv if argv is not None else sys.argv[1:])
     try:
         if args.dataset == PRESETS["default"].dataset:
-            ensure_dataset(PRESETS["default"], not args.quiet)
+            ensure_dataset(args.dataset, PRESETS["default"].data_preset, not args.quiet)
         summary = run(args.models, args.dataset, args.factor, args.out, args.split,
                       args.max_videos, args.videos, crops=not args.no_crops,
                       progress=not args.quiet, command=cmd)
@@ -244,5 +252,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    from jtus import cli  # not ``from jtus.cli import run``: a module may have its own run
     cli.run(main)

@@ -23,45 +23,56 @@ from __future__ import annotations
 import argparse
 import sys
 
+import jax
+import jax.numpy as jnp
+from jax import export
 
-def load_dlctus(spec, factor):
-    """``(model, params)`` of DLCTUS weights: ``shipped``, a ``.msgpack`` written by
-    ``jtus.train`` or a ``.pt`` PyTorch checkpoint."""
-    from jtus import models
+from jtus import cli, loading, models
+from jtus.files import atomic_path, check_out_file
+from jtus.frame import Frame
 
+
+def load_exportable(spec, factor):
+    """``(model, params, Spec)`` of weights whose model exports (``Spec.export``):
+    ``shipped``, a ``.msgpack`` written by ``jtus.train`` or a ``.pt`` checkpoint."""
     builtin = spec == "shipped" or "=" in spec or spec in models.NAMES
-    entry = models.load(spec if builtin else f"m={spec}", factor)
+    entry = loading.load(spec if builtin else f"m={spec}", factor)
     if entry is None:
         raise ValueError(f"--model: {spec} has no weights for factor {factor}")
-    if not hasattr(entry.model.config, "formulation"):
-        raise ValueError(f"--model: {spec} is not a DLCTUS network")
-    return entry.model, entry.params
+    s = models.spec(entry.name)
+    if s.export is None:
+        exportable = [n for n, x in models.REGISTRY.items() if x.export is not None]
+        raise ValueError(f"--model: {spec} is a {entry.name} model, which does not export; "
+                         f"exportable: {exportable}")
+    return entry.model, entry.params, s
 
 
-def to_torch(params, config, out):
-    import torch
+def to_torch(params, config, spec, out):
+    """The parameters as the PyTorch ``state_dict`` of the model's reference layout,
+    saved with ``torch.save`` atomically."""
+    if spec.torch_state_dict is None:
+        raise ValueError(f"--format torch: {spec.name} has no PyTorch layout")
+    import torch  # lazy: torch is optional, needed only for --format torch
 
-    from jtus.files import atomic_path
-    from jtus.models import dlctus
-
-    sd = dlctus.params_to_torch(params, config)
+    sd = spec.torch_state_dict(params, config)
     with atomic_path(out) as tmp:
         torch.save(sd, tmp)
     return out
 
 
-INPUTS = ("color", "depth", "motion", "jitter", "exposure", "reset", "history")
-OUTPUTS = ("frame", "history_out")
+FRAME_INPUTS = ("color", "depth", "motion", "jitter", "exposure", "reset")
 
 
-def step_signature(model, params, size):
-    """``(one_step, argument shapes)``: the exported function, one DLCTUS step at HR
-    ``size``, taking and returning plain arrays in ``INPUTS`` / ``OUTPUTS`` order."""
-    import jax
-    import jax.numpy as jnp
+def io_names(spec):
+    """``(input names, output names)`` of an exported step: the frame's arrays, then
+    the state's (``Spec.export``); the frame, then the next state (suffix ``_out``)."""
+    state = spec.export.names
+    return FRAME_INPUTS + state, ("frame",) + tuple(f"{n}_out" for n in state)
 
-    from jtus.frame import Frame
-    from jtus.models import dlctus
+
+def step_signature(model, params, spec, size):
+    """``(one_step, argument shapes)``: the exported function, one step at HR ``size``,
+    taking and returning plain arrays in ``io_names`` order."""
 
     f = model.config.factor
     H, W = size
@@ -69,43 +80,41 @@ def step_signature(model, params, size):
         raise ValueError(f"--size: {H}x{W} must be a multiple of 4 and of factor {f}")
     h, w = H // f, W // f
 
-    def one_step(color, depth, motion, jitter, exposure, reset, history):
-        out, state = model.step(params, dlctus.State(history),
-                                Frame(color, depth, motion, jitter, reset, exposure))
-        return out, state.history
+    io = spec.export
+
+    def one_step(color, depth, motion, jitter, exposure, reset, *state):
+        out, nxt = model.step(params, io.from_arrays(*state),
+                              Frame(color, depth, motion, jitter, reset, exposure))
+        return (out, *io.to_arrays(nxt))
 
     S = jax.ShapeDtypeStruct
     args = (S((1, h, w, 3), jnp.float32), S((1, h, w, 1), jnp.float32),
             S((1, h, w, 2), jnp.float32), S((1, 2), jnp.float32), S((1,), jnp.float32),
-            S((1,), jnp.bool_), S((1, H, W, 4), jnp.float32))
+            S((1,), jnp.bool_)) + tuple(S(shape, jnp.float32)
+                                        for shape in io.shapes(model.config, H, W))
     return one_step, args
 
 
-def to_onnx(model, params, size, out):
+def to_onnx(model, params, spec, size, out):
     """One step as an ONNX model (opset 23) by ``jax2onnx``, written atomically."""
     try:
-        from jax2onnx import to_onnx as convert
+        from jax2onnx import to_onnx as convert  # lazy: optional (the export extra)
     except ImportError as e:
         raise ValueError("--format onnx needs jax2onnx: pip install -e \".[export]\"") from e
-    from jtus.files import atomic_path
-
-    one_step, args = step_signature(model, params, size)
-    proto = convert(one_step, list(args), model_name="dlctus_step",
-                    input_names=list(INPUTS), output_names=list(OUTPUTS))
+    one_step, args = step_signature(model, params, spec, size)
+    inputs, outputs = io_names(spec)
+    proto = convert(one_step, list(args), model_name=f"{spec.name}_step",
+                    input_names=list(inputs), output_names=list(outputs))
     with atomic_path(out) as tmp, open(tmp, "wb") as fh:
         fh.write(proto.SerializeToString())
     return out
 
 
-def to_stablehlo(model, params, size, out):
-    import jax
-    from jax import export
-
-    from jtus.files import atomic_path
-
-    one_step, args = step_signature(model, params, size)
+def to_stablehlo(model, params, spec, size, out):
+    """One step serialized by ``jax.export`` (StableHLO), written atomically."""
+    one_step, args = step_signature(model, params, spec, size)
     try:
-        import flatbuffers  # noqa: F401  (jax.export's serializer needs it)
+        import flatbuffers  # noqa: F401  lazy: optional, jax.export's serializer needs it
     except ImportError as e:
         raise ValueError("--format stablehlo needs the flatbuffers package: "
                          "pip install -e \".[export]\"") from e
@@ -116,8 +125,6 @@ def to_stablehlo(model, params, size, out):
 
 
 def main(argv=None):
-    from jtus.cli import sigterm_as_exit
-
     p = argparse.ArgumentParser(prog="python -m jtus.export", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--model", default="shipped", help="shipped, a .msgpack or a .pt file")
@@ -128,17 +135,16 @@ def main(argv=None):
     p.add_argument("--out", required=True)
     p.add_argument("--force", action="store_true", help="replace an existing --out")
     args = p.parse_args(argv)
-    sigterm_as_exit()
+    cli.sigterm_as_exit()
     try:
-        from jtus.files import check_out_file
         check_out_file(args.out, args.force, kind="a file")
-        model, params = load_dlctus(args.model, args.factor)
+        model, params, spec = load_exportable(args.model, args.factor)
         if args.format == "torch":
-            to_torch(params, model.config, args.out)
+            to_torch(params, model.config, spec, args.out)
         elif args.format == "onnx":
-            to_onnx(model, params, tuple(args.size), args.out)
+            to_onnx(model, params, spec, tuple(args.size), args.out)
         else:
-            to_stablehlo(model, params, tuple(args.size), args.out)
+            to_stablehlo(model, params, spec, tuple(args.size), args.out)
     except (ValueError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -147,5 +153,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    from jtus import cli  # not ``from jtus.cli import run``: a module may have its own run
     cli.run(main)

@@ -70,20 +70,25 @@ def validate(frame: Frame, factor: int | None = None, time_major: bool = False,
             raise ValueError(f"color: HR size {factor * h}x{factor * w} (factor {factor} x "
                              f"{h}x{w}) must be a multiple of {multiple}")
     if check_finite:
-        for name in ("color", "depth", "motion", "jitter"):
-            arr = np.asarray(getattr(frame, name))
-            if not np.all(np.isfinite(arr)):
-                bad = int(np.size(arr) - np.count_nonzero(np.isfinite(arr)))
-                raise ValueError(f"{name}: {bad} NaN or Inf values")
-        if frame.exposure is not None:
-            e = np.asarray(frame.exposure)
-            if not np.all(np.isfinite(e) & (e > 0)):
-                bad = int(np.size(e) - np.count_nonzero(np.isfinite(e) & (e > 0)))
-                raise ValueError("exposure: expected finite values > 0 (the multiplier that "
-                                 f"pre-exposes HDR colour); {bad} are not")
-        jit = np.asarray(frame.jitter)
-        if np.any((jit < 0) | (jit >= 1)):
-            raise ValueError("jitter: expected values in [0, 1) (offset inside the LR pixel); "
-                             "convert centred [-0.5, 0.5) jitter with "
-                             "jtus.data.conventions.jitter_to_jtus")
+        _check_values(frame)
     return frame
+
+
+def _check_values(frame: Frame):
+    """No NaN or Inf, exposures > 0, jitter inside the pixel (concrete arrays only)."""
+    for name in ("color", "depth", "motion", "jitter"):
+        arr = np.asarray(getattr(frame, name))
+        if not np.all(np.isfinite(arr)):
+            bad = int(np.size(arr) - np.count_nonzero(np.isfinite(arr)))
+            raise ValueError(f"{name}: {bad} NaN or Inf values")
+    if frame.exposure is not None:
+        e = np.asarray(frame.exposure)
+        if not np.all(np.isfinite(e) & (e > 0)):
+            bad = int(np.size(e) - np.count_nonzero(np.isfinite(e) & (e > 0)))
+            raise ValueError("exposure: expected finite values > 0 (the multiplier that "
+                             f"pre-exposes HDR colour); {bad} are not")
+    jit = np.asarray(frame.jitter)
+    if np.any((jit < 0) | (jit >= 1)):
+        raise ValueError("jitter: expected values in [0, 1) (offset inside the LR pixel); "
+                         "convert centred [-0.5, 0.5) jitter with "
+                         "jtus.data.conventions.jitter_to_jtus")

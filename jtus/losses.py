@@ -29,7 +29,7 @@ import functools
 
 import jax.numpy as jnp
 
-from jtus import metrics, sampling
+from jtus import metrics, perceptual, sampling
 
 NAMES = ("l1", "mse", "salvi", "st", "st-linear", "ssim", "kpn")
 
@@ -78,7 +78,6 @@ def _temporal(kind, theta, factor, method, out, target, prev_out, prev_target, h
 def with_perceptual(base, weights_path, weight=0.1):
     """``base + weight * perceptual`` (NSRR's eq. 1 with ``base`` = 1 - SSIM), the
     perceptual term of ``jtus.perceptual`` on the VGG-16 weights in ``weights_path``."""
-    from jtus import perceptual
 
     if not weight >= 0.0:
         raise ValueError(f"perceptual_weight: expected a value >= 0, got {weight}")
@@ -140,12 +139,11 @@ def kpn_loss(factor, weights=(1.0, 1.0, 4.0), alias_boost=1.5, sensitivity=4.0):
 
     The weights follow the paper's rule, not its number: the temporal term is scaled up
     by how much smaller it is than the reference term ("roughly ten times" in their
-    anti-aliasing setting, from which jtus first took a weight of 10), so that it weighs
-    most, then the gradient term, then the reference term (their Figure 7). Up-sampling
-    4x on the ``diverse`` data, the unweighted terms of an initialized KPN are 0.075,
-    0.083 and 0.024 (about 3x, not 10x, apart; experiments/kpn_loss_terms.py): 4 keeps their
-    order, where 10 let the temporal term outweigh the other two together and trained a
-    network whose validation PSNR fell while its loss did (docs/results/kpn-loss/)."""
+    anti-aliasing setting), so that it weighs most, then the gradient term, then the
+    reference term (their Figure 7). Up-sampling 4x on the ``diverse`` data the
+    unweighted terms of an initialized KPN are about 3x, not 10x, apart
+    (``experiments/kpn_loss_terms.py``): a temporal weight of 4 keeps their order, where
+    10 lets the temporal term outweigh the other two together (docs/results/kpn-loss/)."""
     wr, wg, wt = weights
 
     def grad(x):

@@ -2,7 +2,7 @@
 
     python -m jtus.profile                                  # the bench's training step
     python -m jtus.profile --what infer --size 1080p --factor 4
-    python -m jtus.profile --out docs/profile-train-cpu      # also writes .json and .md
+    python -m jtus.profile --out docs/results/profile-cpu/profile-train-cpu  # .json and .md
 
 The step is the bench's workload (``jtus.bench.train_workload`` / ``infer_workload``),
 jitted and warm. A few steps are traced; every XLA op the trace shows (a *thunk* on
@@ -37,7 +37,7 @@ import tempfile
 
 import jax
 
-from jtus import bench, models, sampling
+from jtus import bench, cli, models, sampling, timing
 
 STAGES = ("input_upsampling", "reprojection", "network", "output", "loss", "optimizer")
 _INSTR = re.compile(r"\s*(?:ROOT )?%?([\w.\-]+) = .*? ([a-z][\w\-]*)\(")
@@ -134,9 +134,9 @@ def summarize(totals, ops, steps):
 
 
 def profile(run, hlo_text, steps=3):
-    """Time ``run`` ``steps`` times (``bench.timeit``), then trace it as many times; returns
+    """Time ``run`` ``steps`` times (``timing.timeit``), then trace it as many times; returns
     ``{"steps", "wall_ms" (median, untraced), "unmatched_events", "summary"}``."""
-    wall = bench.timeit(run, steps)
+    wall = timing.timeit(run, steps)
     with tempfile.TemporaryDirectory() as logdir:
         totals, ops, unmatched = trace_ops(run, hlo_text, steps, logdir)
     if not totals:
@@ -201,7 +201,7 @@ def main(argv=None):
         workload = (f"one {args.model.upper()} {args.factor}x inference step at {args.size}"
                     + (f" ({args.warp} warp)" if over else ""))
     run()  # compile
-    report = {"hardware": bench.hardware(), "workload": workload,
+    report = {"hardware": timing.hardware(), "workload": workload,
               "command": "python -m jtus.profile " + " ".join(argv),
               **profile(run, hlo(), args.steps)}
     md = markdown(report)
@@ -215,5 +215,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    from jtus import cli  # not ``from jtus.cli import run``: a module may have its own run
     cli.run(main)

@@ -7,15 +7,13 @@ sweep trains exactly what ``python -m jtus.train`` would.
 
 from __future__ import annotations
 
-import os
-import sys
 from typing import NamedTuple, Optional
 
-import jax
 import optax
 
 from jtus import losses, models, rollout
 from jtus.config import Config
+from jtus.data.dataset import Dataset
 
 
 class Plan(NamedTuple):
@@ -26,8 +24,14 @@ class Plan(NamedTuple):
     windows: list               # rollout.Window per optimizer step of one sequence
 
 
+def model_config(config: Config):
+    """The model's own config for a run: its model, factor and model overrides."""
+    return models.config_for(config.model, config.factor, **dict(config.model_overrides))
+
+
 def model_for(config: Config) -> models.Model:
-    return models.for_run(config)
+    """The ``Model`` a run trains (``model_config``)."""
+    return models.spec(config.model).make(model_config(config))
 
 
 def loss_for(config: Config):
@@ -72,28 +76,15 @@ def start_carry(model, frames, targets) -> rollout.Carry:
     return rollout.start(rollout.first_state(model, frames), targets[0])
 
 
-def ensure_dataset(config: Config, progress=True):
-    """``config.dataset``, generated from ``config.data_preset`` first if missing."""
-    if not os.path.exists(config.dataset):
-        from jtus.data import dataset
-        print(f"{config.dataset} is missing: generating the {config.data_preset!r} preset "
-              f"(once)", file=sys.stderr)
-        dataset.generate(config.data_preset, config.dataset, progress=progress)
-    return config.dataset
-
-
 def check_data(config: Config):
     """Refuse, before anything is written, a dataset this config cannot train on: the
     factor, the crop against the frame size, the window against the videos' lengths,
     empty train or validation splits."""
-    from jtus.data.dataset import Dataset
-
     with Dataset(config.dataset) as ds:
         if config.factor not in ds.factors:
             raise ValueError(f"factor: {config.dataset} holds factors {ds.factors}, got "
                              f"{config.factor}")
-        hdr = dict(config.model_overrides).get("hdr", False)
-        if ds.hdr and not hdr:
+        if ds.hdr and not model_config(config).hdr:
             raise ValueError(f"dataset: {config.dataset} holds HDR colour with an exposure "
                              "per frame; train a model on tone-mapped colour (preset hdr, "
                              "or model override hdr=True)")
@@ -109,27 +100,3 @@ def check_data(config: Config):
             if need > shortest:
                 raise ValueError(f"seq_len: {need} frames exceed the shortest {split} video "
                                  f"of {config.dataset} ({shortest} frames)")
-
-
-def export_params(workdir, out_base):
-    """Write a run's parameters alone (no optimizer state) with its config and
-    per-epoch log: ``out_base.msgpack``, ``.json``, ``-training.csv`` (the form
-    ``jtus/weights/`` ships and ``models.load`` reads)."""
-    from jtus import checkpoint, config as run_config
-
-    params, config = models.load_params(os.path.join(workdir, checkpoint.CHECKPOINT))
-    return checkpoint.write_params(out_base, params, run_config.to_json(config),
-                                   os.path.join(workdir, "metrics.csv"))
-
-
-def init_params(config: Config):
-    """The starting parameters: from ``init_from`` (a checkpoint of the same model and
-    factor) or freshly initialized from ``seed``."""
-    if config.init_from:
-        params, init_cfg = models.load_params(config.init_from)
-        if (init_cfg.model, init_cfg.factor) != (config.model, config.factor):
-            raise ValueError(f"init_from: {config.init_from} holds {init_cfg.model} at "
-                             f"{init_cfg.factor}x, this run trains {config.model} at "
-                             f"{config.factor}x")
-        return params
-    return model_for(config).init(jax.random.PRNGKey(config.seed))

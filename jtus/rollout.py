@@ -35,6 +35,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jtus.frame import validate
+
 
 class Carry(NamedTuple):
     state: Any              # the model's state
@@ -81,7 +83,6 @@ def _check(frames, check):
     Skipped when ``check`` is False or inside a trace (jitted hot loops)."""
     if check and not any(isinstance(x, jax.core.Tracer)
                          for x in jax.tree_util.tree_leaves(frames)):
-        from jtus.frame import validate
         validate(frames, time_major=True, check_finite=True)
 
 
@@ -279,22 +280,3 @@ def tbptt_windows(length, k1, k2):
         raise ValueError(f"tbptt: (length - k2) = {length - k2} must be a multiple of "
                          f"k1 = {k1}")
     return [Window(s, s + k2) for s in range(0, length - k2 + 1, k1)]
-
-
-def tbptt_grads(step, loss_fn, params, carry, frames, targets, *, k1, k2, remat=False,
-                unroll=1):
-    """Gradients of every TBPTT window at fixed ``params`` (a reference for tests and
-    for plans that apply updates elsewhere). Returns ``([(loss, grads)], carry)``."""
-
-    def f(p, c, fr, tg):
-        return window_loss(step, loss_fn, p, c, fr, tg, loss_frames=k1,
-                           keep_at=k1 if k1 < k2 else None, remat=remat, unroll=unroll)
-
-    grad_fn = jax.jit(jax.value_and_grad(f, has_aux=True))
-    results = []
-    for w in tbptt_windows(frames.color.shape[0], k1, k2):
-        sl = jax.tree_util.tree_map(lambda x: x[w.start:w.stop], (frames, targets))
-        (loss, (last, kept)), grads = grad_fn(params, carry, *sl)
-        results.append((loss, grads))
-        carry = jax.lax.stop_gradient(kept if kept is not None else last)
-    return results, carry

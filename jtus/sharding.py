@@ -16,6 +16,8 @@ import sys
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import NamedSharding
+from jax.sharding import PartitionSpec as P
 
 
 def initialize(coordinator=None, num_processes=None, process_id=None):
@@ -55,14 +57,22 @@ def shard(tree, mesh, axis):
     (arrays without that axis, or not divisible, are replicated). With several
     processes, ``tree`` is this process's part: split arrays hold its slice of the
     batch, replicated ones the same value on every process."""
-    from jax.sharding import NamedSharding, PartitionSpec as P
+    return _place(tree, mesh, axis)
 
+
+def replicate(tree, mesh):
+    """Place every array of ``tree`` whole on every device of ``mesh`` (parameters,
+    optimizer state)."""
+    return _place(tree, mesh, None)
+
+
+def _place(tree, mesh, axis):
     multi = jax.process_count() > 1
     n = len(mesh.local_devices) if multi else mesh.devices.size
 
     def put(x):
         x = np.asarray(x) if multi else jnp.asarray(x)
-        split = x.ndim > axis and x.shape[axis] % n == 0
+        split = axis is not None and x.ndim > axis and x.shape[axis] % n == 0
         s = NamedSharding(mesh, P(*([None] * axis), "data") if split else P())
         if multi:
             return jax.make_array_from_process_local_data(s, x)

@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
+import json
 import os
 import sys
 import time
@@ -35,12 +36,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+from jax.experimental import multihost_utils
+from matplotlib.figure import Figure
 from tqdm import tqdm
 
-from jtus import checkpoint, config as run_config, evaluate, models, recipe, rollout, sharding
-from jtus.config import PRESETS, Config
+from jtus import checkpoint, cli, evaluate, loading, models, recipe, rollout, sharding
+from jtus import config as run_config
+from jtus.config import PRESETS, REMAT_CHOICES, Config
 from jtus.data.dataset import Dataset
 from jtus.files import atomic_path
+from jtus.sim import generate
 
 # ---------------------------------------------------------------- train step
 
@@ -106,12 +111,9 @@ def write_csv(workdir, history):
 
 def plot_history(history, path):
     """Training loss, validation loss, validation PSNR and SSIM per epoch (thesis Fig. 16)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     ep = [h["epoch"] for h in history]
-    fig, ax = plt.subplots(1, 4, figsize=(14, 3))
+    fig = Figure(figsize=(14, 3))
+    ax = fig.subplots(1, 4)
     for a, key, title in zip(ax, ("train_loss", "val_loss", "val_psnr", "val_ssim"),
                              ("training loss", "validation loss", "validation PSNR (dB)",
                               "validation SSIM")):
@@ -121,7 +123,6 @@ def plot_history(history, path):
         a.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
-    plt.close(fig)
 
 
 def collapsed(history, tiny=1e-7):
@@ -175,6 +176,121 @@ def _prepare_workdir(config, workdir, resume, overwrite):
                          f"{cfg_path} (only --epochs may change); use a new --workdir")
 
 
+def _clear_old_run(workdir):
+    for name in (checkpoint.CHECKPOINT, checkpoint.METRICS, "metrics.csv", "training.png"):
+        if os.path.exists(os.path.join(workdir, name)):
+            os.remove(os.path.join(workdir, name))
+
+
+class _Run(NamedTuple):
+    """What every epoch of a run shares."""
+    config: Config
+    model: Any
+    plan: recipe.Plan
+    step_fn: Any        # the jitted optimizer step (make_train_step)
+    eval_loss: Any      # jitted validation loss of one crop
+    mesh: Any           # the data mesh, or None on one device
+    accept: Any         # the model's training-crop acceptance hook
+
+
+def _start(config, workdir, resume, overwrite, progress):
+    """Check everything, then set the run up: ``(_Run, train state, first epoch,
+    history)``; the config is written, and a replaced run cleared, only once valid."""
+    procs, main = jax.process_count(), sharding.is_main()
+    _prepare_workdir(config, workdir, resume, overwrite)
+    if main:
+        generate.ensure_dataset(config.dataset, config.data_preset, progress)
+    if procs > 1:
+        multihost_utils.sync_global_devices("jtus: dataset ready")
+        if config.batch % procs:
+            raise ValueError(f"batch: {config.batch} is not a multiple of the {procs} "
+                             "processes")
+    recipe.check_data(config)
+    model, loss_fn, opt = recipe.model_for(config), recipe.loss_for(config), \
+        recipe.optimizer_for(config)
+    ts = create_train_state(loading.init_params(config), opt)
+    if main:
+        os.makedirs(workdir, exist_ok=True)
+        if overwrite and not resume:  # the old run goes only once the new one is valid
+            _clear_old_run(workdir)
+    start_epoch, history = 0, []
+    if resume and os.path.exists(os.path.join(workdir, checkpoint.CHECKPOINT)):
+        ts, start_epoch, history = checkpoint.restore_train_state(workdir, ts)
+        print(f"resumed {workdir} after epoch {start_epoch}", file=sys.stderr)
+    if main:
+        with atomic_path(os.path.join(workdir, "config.json")) as tmp:
+            with open(tmp, "w") as fh:
+                fh.write(run_config.to_json(config))
+    mesh = sharding.data_mesh(config.batch)
+    if mesh is not None:  # batch split over the devices, parameters replicated
+        ts = sharding.replicate(ts, mesh)
+    plan = recipe.plan(config)
+    step_fn = make_train_step(model, loss_fn, opt, loss_frames=plan.loss_frames,
+                              keep_at=plan.keep_at, remat=config.remat, hoist=config.hoist)
+    eval_loss = jax.jit(lambda p, c, f, t: rollout.window_loss(
+        model.step, loss_fn, p, c, f, t, loss_frames=plan.loss_frames)[0])
+    run = _Run(config, model, plan, step_fn, eval_loss, mesh, recipe.accept_for(config))
+    return run, ts, start_epoch, history
+
+
+def _train_epoch(run, ts, ds, epoch, progress):
+    """One epoch of optimizer steps: ``(train state, per-step stats on the device)``.
+    One random stream per epoch (and per process), so a resumed run draws the same
+    crops."""
+    config, procs = run.config, jax.process_count()
+    rng = np.random.default_rng([config.seed, epoch] + (
+        [jax.process_index()] if procs > 1 else []))
+    stats = []
+    bar = tqdm(range(config.steps_per_epoch), desc=f"epoch {epoch}/{config.epochs}",
+               disable=not progress, leave=False)
+    for i in bar:
+        frames, targets = ds.crops("train", config.factor, config.batch // procs,
+                                   config.seq_len, config.crop, rng, accept=run.accept)
+        frames, targets = jax.tree_util.tree_map(jnp.asarray, (frames, targets))
+        carry = recipe.start_carry(run.model, frames, targets)
+        if run.mesh is not None:
+            frames, targets = sharding.shard((frames, targets), run.mesh, axis=1)
+            carry = sharding.shard(carry, run.mesh, axis=0)
+        for w in run.plan.windows:
+            sl = jax.tree_util.tree_map(lambda x: x[w.start:w.stop], (frames, targets))
+            ts, carry, st = run.step_fn(ts, carry, *sl)
+            stats.append(st)
+        if progress and i % 10 == 9:  # one device sync per 10 sequences
+            recent = sharding.to_host([s["loss"] for s in stats[-20:]])
+            bar.set_postfix(loss=f"{float(np.mean(recent)):.4f}")
+    return ts, stats
+
+
+def _validate(run, params, ds, val_crops):
+    """The validation loss on fixed crops and PSNR / SSIM over whole validation videos."""
+    config = run.config
+    val = [float(run.eval_loss(params, recipe.start_carry(run.model, *c), *c))
+           for c in val_crops]
+    psnr, ssim = [], []
+    for name in ds.videos("val")[:config.val_videos]:
+        vf, vt = ds.video("val", name, config.factor)
+        m = evaluate.video_metrics(run.model, params,
+                                   *jax.tree_util.tree_map(jnp.asarray, (vf, vt)),
+                                   config.factor)
+        psnr.append(m["psnr"])
+        ssim.append(m["ssim"])
+    return {"val_loss": float(np.mean(val)),
+            "val_psnr": float(np.mean(np.concatenate(psnr))) if psnr else float("nan"),
+            "val_ssim": float(np.mean(np.concatenate(ssim))) if ssim else float("nan")}
+
+
+def _record_epoch(workdir, ts, epoch, history):
+    """The epoch's checkpoint, CSV, plot and log line (process 0 alone)."""
+    rec = history[-1]
+    checkpoint.save_train_state(workdir, sharding.to_host(ts) if jax.process_count() > 1
+                                else ts, epoch, history)
+    write_csv(workdir, history)
+    plot_history(history, os.path.join(workdir, "training.png"))
+    print(f"epoch {epoch}: train {rec['train_loss']:.4f}  val {rec['val_loss']:.4f}  "
+          f"PSNR {rec['val_psnr']:.2f} dB  SSIM {rec['val_ssim']:.4f}  "
+          f"|g| {rec['grad_norm']:.3g}  ({rec['seconds']:.0f} s)", file=sys.stderr)
+
+
 def train_and_evaluate(config: Config, workdir, resume=False, progress=True, stop_after=None,
                        overwrite=False, stop_when=None):
     """Train ``config`` into ``workdir``; returns ``(params, history)``.
@@ -191,108 +307,30 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
     own ``batch / processes`` crops of each step (its own random stream) and process 0
     alone writes files; the workdir and dataset must be on a file system they share.
     """
-    procs, main = jax.process_count(), sharding.is_main()
-    _prepare_workdir(config, workdir, resume, overwrite)
-    if main:
-        recipe.ensure_dataset(config, progress)
-    if procs > 1:
-        from jax.experimental import multihost_utils
-        multihost_utils.sync_global_devices("jtus: dataset ready")
-        if config.batch % procs:
-            raise ValueError(f"batch: {config.batch} is not a multiple of the {procs} "
-                             "processes")
-    recipe.check_data(config)
-    model, loss_fn, opt = recipe.model_for(config), recipe.loss_for(config), \
-        recipe.optimizer_for(config)
-    ts = create_train_state(recipe.init_params(config), opt)
-    if main:
-        os.makedirs(workdir, exist_ok=True)
-    if overwrite and not resume and main:  # the old run goes only once the new one is valid
-        for name in (checkpoint.CHECKPOINT, checkpoint.METRICS, "metrics.csv", "training.png"):
-            if os.path.exists(os.path.join(workdir, name)):
-                os.remove(os.path.join(workdir, name))
-    start_epoch, history = 0, []
-    if resume and os.path.exists(os.path.join(workdir, checkpoint.CHECKPOINT)):
-        ts, start_epoch, history = checkpoint.restore_train_state(workdir, ts)
-        print(f"resumed {workdir} after epoch {start_epoch}", file=sys.stderr)
-    if main:
-        with atomic_path(os.path.join(workdir, "config.json")) as tmp:
-            with open(tmp, "w") as fh:
-                fh.write(run_config.to_json(config))
-    mesh = sharding.data_mesh(config.batch)
-    if mesh is not None:  # batch split over the devices, parameters replicated
-        ts = sharding.shard(ts, mesh, axis=10**6)
-    plan = recipe.plan(config)
-    accept = recipe.accept_for(config)
-    step_fn = make_train_step(model, loss_fn, opt, loss_frames=plan.loss_frames,
-                              keep_at=plan.keep_at, remat=config.remat)
-    eval_loss = jax.jit(lambda p, c, f, t: rollout.window_loss(
-        model.step, loss_fn, p, c, f, t, loss_frames=plan.loss_frames)[0])
+    run, ts, start_epoch, history = _start(config, workdir, resume, overwrite, progress)
+    end = config.epochs
+    if stop_when is not None and history and stop_when(history):
+        end = start_epoch  # stopped in an earlier call: nothing more to train
     with Dataset(config.dataset) as ds:
         val_rng = np.random.default_rng([config.seed, 10**6])
         val_crops = [jax.tree_util.tree_map(jnp.asarray, ds.crops(
-            "val", config.factor, config.batch, plan.window, config.crop, val_rng))
+            "val", config.factor, config.batch, run.plan.window, config.crop, val_rng))
             for _ in range(config.val_batches)]
-        val_names = ds.videos("val")[:config.val_videos]
-        done = 0
-        local_batch = config.batch // procs
-        end = config.epochs
-        if stop_when is not None and history and stop_when(history):
-            end = start_epoch  # stopped in an earlier call: nothing more to train
-        for epoch in range(start_epoch + 1, end + 1):
-            # one stream per epoch (and per process): resume draws the same crops
-            rng = np.random.default_rng([config.seed, epoch] + (
-                [jax.process_index()] if procs > 1 else []))
+        for done, epoch in enumerate(range(start_epoch + 1, end + 1), 1):
             t0 = time.perf_counter()
-            stats = []
-            bar = tqdm(range(config.steps_per_epoch), desc=f"epoch {epoch}/{config.epochs}",
-                       disable=not progress, leave=False)
-            for i in bar:
-                frames, targets = ds.crops("train", config.factor, local_batch, config.seq_len,
-                                           config.crop, rng, accept=accept)
-                frames, targets = jax.tree_util.tree_map(jnp.asarray, (frames, targets))
-                carry = recipe.start_carry(model, frames, targets)
-                if mesh is not None:
-                    frames, targets = sharding.shard((frames, targets), mesh, axis=1)
-                    carry = sharding.shard(carry, mesh, axis=0)
-                for w in plan.windows:
-                    sl = jax.tree_util.tree_map(lambda x: x[w.start:w.stop], (frames, targets))
-                    ts, carry, st = step_fn(ts, carry, *sl)
-                    stats.append(st)
-                if progress and i % 10 == 9:  # one device sync per 10 sequences
-                    recent = sharding.to_host([s["loss"] for s in stats[-20:]])
-                    bar.set_postfix(loss=f"{float(np.mean(recent)):.4f}")
+            ts, stats = _train_epoch(run, ts, ds, epoch, progress)
             rec = {"epoch": epoch, "step": int(sharding.to_host(ts.step)),
                    **_epoch_stats(stats, workdir, epoch)}
-            params = sharding.to_host(ts.params) if procs > 1 else ts.params
-            val = [float(eval_loss(params, recipe.start_carry(model, *c), *c))
-                   for c in val_crops]
-            psnr, ssim = [], []
-            for name in val_names:
-                vf, vt = ds.video("val", name, config.factor)
-                m = evaluate.video_metrics(model, params,
-                                           *jax.tree_util.tree_map(jnp.asarray, (vf, vt)),
-                                           config.factor)
-                psnr.append(m["psnr"])
-                ssim.append(m["ssim"])
-            rec.update({"val_loss": float(np.mean(val)),
-                        "val_psnr": float(np.mean(np.concatenate(psnr))) if psnr else float("nan"),
-                        "val_ssim": float(np.mean(np.concatenate(ssim))) if ssim else float("nan"),
-                        "seconds": time.perf_counter() - t0})
+            params = sharding.to_host(ts.params) if jax.process_count() > 1 else ts.params
+            rec.update(_validate(run, params, ds, val_crops))
+            rec["seconds"] = time.perf_counter() - t0
             history.append(rec)
             why = collapsed(history)
             if why:
                 print(f"warning: {why}: the network may have collapsed (saturated outputs pass "
                       f"no gradient; try a lower --lr, see docs/weights.md)", file=sys.stderr)
-            if main:  # the other processes hold the same state and history
-                checkpoint.save_train_state(workdir, sharding.to_host(ts) if procs > 1 else ts,
-                                            epoch, history)
-                write_csv(workdir, history)
-                plot_history(history, os.path.join(workdir, "training.png"))
-                print(f"epoch {epoch}: train {rec['train_loss']:.4f}  val {rec['val_loss']:.4f}  "
-                      f"PSNR {rec['val_psnr']:.2f} dB  SSIM {rec['val_ssim']:.4f}  "
-                      f"|g| {rec['grad_norm']:.3g}  ({rec['seconds']:.0f} s)", file=sys.stderr)
-            done += 1
+            if sharding.is_main():  # the other processes hold the same state and history
+                _record_epoch(workdir, ts, epoch, history)
             if stop_after is not None and done >= stop_after:
                 break
             if stop_when is not None and stop_when(history):
@@ -315,7 +353,7 @@ def _parser():
                    help="skip the final comparison with JAU, TUS and the shipped weights")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     for f in dataclasses.fields(Config):
-        if f.name in ("model_overrides",):
+        if f.name in ("model_overrides", "remat"):
             continue
         flag = "--" + f.name.replace("_", "-")
         if f.type in ("bool", bool):
@@ -323,7 +361,14 @@ def _parser():
         else:
             typ = {"int": int, "float": float}.get(str(f.type), str)
             p.add_argument(flag, type=typ, default=None)
-    p.add_argument("--warp", help="DLCTUS reprojection warp (any jtus.sampling method)")
+    p.add_argument("--remat", choices=tuple(REMAT_CHOICES), default=None,
+                   help="rematerialization of the scanned step (docs/performance.md): none "
+                        "(the default), full, a jax.checkpoint policy (dots, dots_no_batch), "
+                        "or reverse (a hand-written reverse-time backward); each trades "
+                        "time for memory")
+    p.add_argument("--model-override", action="append", default=[], metavar="KEY=VALUE",
+                   help="set a field of the model's config (e.g. warp=bilinear, hdr=true); "
+                        "merged with the preset's overrides; repeatable")
     d = p.add_argument_group("multi-process data parallelism (docs/distributed.md)")
     d.add_argument("--distributed", action="store_true",
                    help="join a multi-process run (jax.distributed); without the three "
@@ -338,6 +383,8 @@ def config_from_args(args) -> Config:
     base = PRESETS[args.preset]
     over = {f.name: getattr(args, f.name) for f in dataclasses.fields(Config)
             if f.name != "model_overrides" and getattr(args, f.name, None) is not None}
+    if args.remat is not None:
+        over["remat"] = REMAT_CHOICES[args.remat]
     if "model" in over and "loss" not in over:  # a model's own loss (KPN's masked loss)
         over["loss"] = models.spec(over["model"]).loss
     config = dataclasses.replace(base, **over)
@@ -345,9 +392,24 @@ def config_from_args(args) -> Config:
         raise ValueError(f"loss_frames: tbptt mode takes the loss on each window's last k1="
                          f"{config.k1} frames, so --loss-frames {config.loss_frames} would be "
                          f"ignored; pass --k1 instead, or --mode bptt")
-    if args.warp:
-        config = dataclasses.replace(config, model_overrides=(("warp", args.warp),))
+    if args.model_override:
+        merged = dict(config.model_overrides)
+        merged.update(parse_override(o) for o in args.model_override)
+        config = dataclasses.replace(config, model_overrides=tuple(merged.items()))
+        recipe.model_config(config)  # an unknown field is refused here, naming it
     return config
+
+
+def parse_override(text):
+    """``KEY=VALUE`` -> ``(key, value)``; the value read as JSON (``true``, ``0.5``)
+    when it is JSON, else kept as a string (``bilinear``)."""
+    key, sep, value = text.partition("=")
+    if not sep or not key:
+        raise ValueError(f"--model-override: expected KEY=VALUE, got {text!r}")
+    try:
+        return key, json.loads(value)
+    except json.JSONDecodeError:
+        return key, value
 
 
 def config_from_argv(argv) -> Config:
@@ -358,8 +420,7 @@ def config_from_argv(argv) -> Config:
 
 def main(argv=None):
     args = _parser().parse_args(argv)
-    from jtus.cli import sigterm_as_exit
-    sigterm_as_exit()
+    cli.sigterm_as_exit()
     given = [x is not None for x in (args.coordinator, args.num_processes, args.process_id)]
     if any(given) and not (args.distributed and all(given)):
         print("error: --coordinator, --num-processes and --process-id go together, with "
@@ -383,7 +444,7 @@ def main(argv=None):
         try:
             summary = evaluate.run(specs, config.dataset, [config.factor],
                                    os.path.join(workdir, "eval"),
-                                   max_videos=4 if args.preset == "default" else None,
+                                   max_videos=config.test_videos or None,
                                    progress=not args.quiet)
         except (ValueError, FileNotFoundError) as e:
             print(f"error: {e}", file=sys.stderr)
@@ -393,5 +454,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    from jtus import cli  # not ``from jtus.cli import run``: a module may have its own run
     cli.run(main)

@@ -21,12 +21,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jtus import cli, loading, rollout
+from jtus.data import exr
+from jtus.data.dataset import Dataset
+from jtus.data.exr import linear_to_srgb
+from jtus.frame import Frame, validate
+from jtus.sampling import display
+
 
 def _load_input(args):
-    from jtus.frame import Frame
-
     if os.path.isdir(args.input):
-        from jtus.data import exr
 
         spec = exr.ImportSpec.from_json(args.exr_spec) if args.exr_spec else exr.ImportSpec()
         video = exr.load_sequence(args.input, None, args.factor, spec)
@@ -35,7 +39,6 @@ def _load_input(args):
         return Frame(x["color"][:, None], x["depth"][:, None], x["motion"][:, None],
                      x["jitter"][:, None], video["reset"][:, None],
                      None if e is None else e[:, None])
-    from jtus.data.dataset import Dataset
 
     with Dataset(args.input) as ds:
         names = ds.videos(args.split)
@@ -47,8 +50,6 @@ def _load_input(args):
 
 def upsample(entry, frames):
     """Outputs ``[T,H,W,3]`` of a model entry over a time-major ``Frame`` with B=1."""
-    from jtus import rollout
-    from jtus.frame import validate
 
     validate(frames, time_major=True)
     fj = jax.tree_util.tree_map(jnp.asarray, frames)
@@ -57,11 +58,10 @@ def upsample(entry, frames):
 
 def write_mp4(path, frames_lr, outputs, factor, fps=30):
     try:
-        import imageio.v2 as imageio
-        import imageio_ffmpeg  # noqa: F401
+        import imageio.v2 as imageio  # lazy: optional (the video extra), only for --mp4
+        import imageio_ffmpeg  # noqa: F401  lazy: optional, imageio's ffmpeg writer
     except ImportError as e:
         raise ValueError("--mp4 needs the video extra: pip install -e \".[video]\"") from e
-    from jtus.data.exr import linear_to_srgb
 
     lr = np.repeat(np.repeat(frames_lr, factor, 1), factor, 2)
     both = np.concatenate([lr, outputs], 2)
@@ -73,9 +73,6 @@ def write_mp4(path, frames_lr, outputs, factor, fps=30):
 
 
 def main(argv=None):
-    from jtus import models
-    from jtus.data import exr
-
     p = argparse.ArgumentParser(prog="python -m jtus.upsample", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--input", required=True, help="HDF5 dataset or folder of LR EXR frames")
@@ -90,11 +87,10 @@ def main(argv=None):
     p.add_argument("--format", choices=exr.IMAGE_FORMATS, default="png")
     p.add_argument("--mp4", help="also write input | output side by side to this MP4")
     args = p.parse_args(argv)
-    from jtus.cli import sigterm_as_exit
-    sigterm_as_exit()
+    cli.sigterm_as_exit()
     try:
         exr.check_sequence_folder(args.out, args.force)
-        entry = models.load(args.model, args.factor)
+        entry = loading.load(args.model, args.factor)
         if entry is None:
             raise ValueError(f"model {args.model!r} is not available at {args.factor}x")
         frames = _load_input(args)
@@ -103,7 +99,6 @@ def main(argv=None):
         if frames.exposure is not None:
             # HDR: 8-bit images and the MP4 show the tone-mapped pre-exposed colour
             # (docs/conventions.md); EXR frames keep the radiance
-            from jtus.sampling import display
             e = jnp.asarray(frames.exposure)
             shown, lr = (np.asarray(display(jnp.asarray(x)[:, None], e))[:, 0]
                          for x in (outs, lr))
@@ -119,5 +114,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    from jtus import cli  # not ``from jtus.cli import run``: a module may have its own run
     cli.run(main)

@@ -41,8 +41,8 @@ def rng():
 def tiny_data(tmp_path_factory):
     """The ``tiny`` preset, generated once per test session (per xdist worker) and
     only read by the tests that take it."""
-    from jtus.data import dataset
+    from jtus.sim import generate
 
     path = tmp_path_factory.mktemp("data") / "tiny.h5"
-    dataset.generate("tiny", path, progress=False)
+    generate.generate("tiny", path, progress=False)
     return str(path)

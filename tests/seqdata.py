@@ -1,9 +1,12 @@
-"""Small synthetic sequences for model tests: smooth images, sub-pixel motion,
-jitter from the thesis patterns. Not a renderer: just well-conditioned inputs."""
+"""Shared test helpers: small synthetic sequences (smooth images, sub-pixel motion,
+jitter from the thesis patterns; not a renderer, just well-conditioned inputs),
+time-step selection, and TBPTT gradients window by window."""
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jtus import rollout
 from jtus.frame import Frame
 from jtus.sampling import jitter_sequence
 
@@ -78,3 +81,38 @@ def jau_reference(color, jitter, f):
         bot = c[y1][:, x0] * (1 - ax)[None, :, None] + c[y1][:, x1] * ax[None, :, None]
         out[k] = top * (1 - ay)[:, None, None] + bot * ay[:, None, None]
     return out
+
+
+def first(tree):
+    """Time step 0 of a time-major tree."""
+    return jax.tree_util.tree_map(lambda x: x[0], tree)
+
+
+def at(tree, t):
+    """Time step ``t`` of a time-major tree."""
+    return jax.tree_util.tree_map(lambda x: x[t], tree)
+
+
+def tbptt_grads(step, loss_fn, params, carry, frames, targets, *, k1, k2, remat=False,
+                unroll=1):
+    """Gradients of every TBPTT window at fixed ``params``, each window's carry cut and
+    handed on as ``jtus.train`` hands it. Returns ``([(loss, grads)], carry)``."""
+
+    def f(p, c, fr, tg):
+        return rollout.window_loss(step, loss_fn, p, c, fr, tg, loss_frames=k1,
+                           keep_at=k1 if k1 < k2 else None, remat=remat, unroll=unroll)
+
+    grad_fn = jax.jit(jax.value_and_grad(f, has_aux=True))
+    results = []
+    for w in rollout.tbptt_windows(frames.color.shape[0], k1, k2):
+        sl = jax.tree_util.tree_map(lambda x: x[w.start:w.stop], (frames, targets))
+        (loss, (last, kept)), grads = grad_fn(params, carry, *sl)
+        results.append((loss, grads))
+        carry = jax.lax.stop_gradient(kept if kept is not None else last)
+    return results, carry
+
+
+def cast_frame(frame, dtype):
+    """``frame`` with its colour, depth, motion and jitter in ``dtype``."""
+    return frame._replace(**{k: jnp.asarray(getattr(frame, k), dtype)
+                             for k in ("color", "depth", "motion", "jitter")})

@@ -1,7 +1,9 @@
 """The dependency rules of docs/architecture.md, read from the source (every import
-statement counts, inside functions too): no import cycle between jtus modules, no
-module or experiment using another module's ``_private`` name, nothing in ``jtus/``
-importing ``tests/``."""
+statement counts, inside functions too): jtus's modules in layers that import only
+their own layer or lower, no import cycle, imports of jtus modules at the top of each
+file (only optional heavy dependencies lazy, each with its reason), no module or
+experiment using another module's ``_private`` name, nothing in ``jtus/`` reading
+``tests/``. Each rule has a control that shows it can fail."""
 
 from __future__ import annotations
 
@@ -106,6 +108,109 @@ def _without_package_edges(graph):
     return {v: {w for w in ws if not v.startswith(w + ".")} for v, ws in graph.items()}
 
 
+# docs/architecture.md, "Layers": bottom to top; a module belongs to the layer of the
+# longest prefix that names it; every ``__main__`` (a CLI) sits above them all
+LAYERS = (
+    ("base", ("jtus", "jtus.files", "jtus.timing", "jtus.cli", "jtus.frame")),
+    ("numerics", ("jtus.sampling", "jtus.perceptual", "jtus.metrics", "jtus.losses",
+                  "jtus.rollout")),
+    ("data", ("jtus.data",)),
+    ("models", ("jtus.models", "jtus.cost")),
+    ("sim", ("jtus.sim",)),
+    ("training", ("jtus.config", "jtus.recipe", "jtus.checkpoint", "jtus.loading",
+                  "jtus.sharding", "jtus.evaluate", "jtus.train")),
+    ("tools", ("jtus.bench", "jtus.profile", "jtus.export", "jtus.upsample",
+               "jtus.reference")),
+)
+# optional heavy dependencies, imported inside the function that needs them; each such
+# import carries a ``lazy:`` comment saying why
+LAZY = ("torch", "jax2onnx", "onnxruntime", "flatbuffers", "imageio", "imageio_ffmpeg",
+        "mitsuba", "jtus.reference")
+
+
+def layer_of(module):
+    if module.endswith(".__main__"):
+        return len(LAYERS)
+    best = max(((len(p), i) for i, (_, prefixes) in enumerate(LAYERS) for p in prefixes
+                if module == p or module.startswith(p + ".")), default=None)
+    assert best is not None, f"{module} is in no layer of LAYERS (docs/architecture.md)"
+    return best[1]
+
+
+def _upward(graph):
+    return sorted(f"{v} ({LAYERS[layer_of(v)][0] if layer_of(v) < len(LAYERS) else 'cli'}) "
+                  f"imports {w} ({LAYERS[layer_of(w)][0]})"
+                  for v, ws in _without_package_edges(graph).items() for w in ws
+                  if layer_of(w) > layer_of(v))
+
+
+def test_every_module_is_in_a_layer():
+    for name in MODULES:
+        layer_of(name)
+
+
+def test_no_upward_imports():
+    bad = _upward(_graph())
+    assert not bad, "imports that run up the layers:\n" + "\n".join(bad)
+
+
+def test_upward_finder_finds_an_upward_import():
+    """The control: ``sim`` reaching up into ``train`` is reported."""
+    g = _graph()
+    g["jtus.sim.render"] = g["jtus.sim.render"] | {"jtus.train"}
+    assert _upward(g) == ["jtus.sim.render (sim) imports jtus.train (training)"]
+
+
+def _nested_imports(path):
+    """``(line, module, text of the line)`` of every import below a file's top level."""
+    name = os.path.relpath(path, ROOT)[:-3].replace(os.sep, ".")
+    src = open(path).read()
+    lines = src.splitlines()
+    tree = ast.parse(src, path)
+    top = {id(n) for n in tree.body}
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Import, ast.ImportFrom)) and id(node) not in top:
+            if isinstance(node, ast.Import):
+                mods = [a.name for a in node.names]
+            else:
+                base = node.module or ""
+                if node.level:
+                    pkg = _package_of(name, path).split(".")
+                    base = ".".join(pkg[:len(pkg) - node.level + 1] + ([base] if base else []))
+                mods = [base]
+            out += [(node.lineno, m, lines[node.lineno - 1]) for m in mods]
+    return out
+
+
+def _bad_nested(paths):
+    bad = []
+    for path in paths:
+        for line, mod, text in _nested_imports(path):
+            where = f"{os.path.relpath(path, ROOT)}:{line}: {mod}"
+            lazy = mod.split(".")[0] in LAZY or mod.startswith(LAZY)
+            if not lazy:
+                bad.append(where + " (import it at the top of the file)")
+            elif "lazy:" not in text:
+                bad.append(where + " (an optional dependency: say why it is lazy, '# lazy: ...')")
+    return bad
+
+
+def test_imports_at_the_top_of_each_file():
+    bad = _bad_nested(MODULES.values())
+    assert not bad, "imports inside functions:\n" + "\n".join(bad)
+
+
+def test_nested_import_finder_finds_them(tmp_path):
+    """The control: a jtus module and a required dependency imported in a function are
+    reported, and so is a lazy optional one without its reason; one with it is not."""
+    p = tmp_path / "m.py"
+    p.write_text("def f():\n    from jtus import train\n    import numpy\n"
+                 "    import torch\n    import onnxruntime  # lazy: optional\n")
+    bad = _bad_nested([str(p)])
+    assert [b.split(": ", 1)[1].split(" ")[0] for b in bad] == ["jtus", "numpy", "torch"], bad
+
+
 def test_no_import_cycles():
     cycles = _cycles(_without_package_edges(_graph()))
     assert not cycles, f"import cycles between jtus modules: {cycles}"
@@ -164,9 +269,35 @@ def test_private_finder_finds_a_use(tmp_path):
     assert len(found) == 2, found
 
 
-def test_package_never_imports_tests():
-    bad = [n for n, p in MODULES.items() if any(t.startswith("tests") for t in _imports(n, p)[0])]
+def _reads_tests(paths):
+    """Files that import ``tests`` or name a path into ``tests/`` (a module loaded by
+    path is a dependency the import graph does not show)."""
+    bad = []
+    for path in paths:
+        name = os.path.relpath(path, ROOT)[:-3].replace(os.sep, ".")
+        targets, _, _, tree = _imports(name, path)
+        strings = [n.value for n in ast.walk(tree)
+                   if isinstance(n, ast.Constant) and isinstance(n.value, str)]
+        if any(t.startswith("tests") for t in targets) or any(
+                s == "tests" or s.startswith("tests/") for s in strings):
+            bad.append(os.path.relpath(path, ROOT))
+    return bad
+
+
+def test_package_never_reads_tests():
+    bad = _reads_tests(MODULES.values())
     assert not bad, bad
+
+
+def test_tests_reader_finds_an_import_and_a_path(tmp_path):
+    """The control: an import of ``tests`` and a path joined into ``tests/`` (how the
+    bench once loaded its PyTorch reference) are both found."""
+    a, b, c = tmp_path / "a.py", tmp_path / "b.py", tmp_path / "c.py"
+    a.write_text("from tests import seqdata\n")
+    b.write_text("import os\nREF = os.path.join(os.path.dirname(__file__), 'tests', 'r.py')\n")
+    c.write_text("import os\nREF = os.path.join(os.path.dirname(__file__), 'jtus', 'r.py')\n")
+    assert [os.path.basename(p) for p in _reads_tests([str(a), str(b), str(c)])] == \
+        ["a.py", "b.py"]
 
 
 def _main_block_rebinds(path):
@@ -215,6 +346,32 @@ def test_code_is_lint_clean():
     import sys
 
     root = os.path.join(os.path.dirname(__file__), "..")
-    r = subprocess.run([sys.executable, "-m", "ruff", "check", "--no-cache", "jtus",
+    r = subprocess.run([sys.executable, "-m", "ruff", "check", "--no-cache", "jtus", "tools",
                         "experiments", "tests"], cwd=root, capture_output=True, text=True)
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+MAX_LINES = 60  # docs/architecture.md: a function longer than this is split at its seams
+
+
+def _long_functions(paths, limit=MAX_LINES):
+    out = []
+    for path in paths:
+        for node in ast.walk(ast.parse(open(path).read(), path)):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                n = node.end_lineno - node.lineno + 1
+                if n > limit:
+                    out.append(f"{os.path.relpath(path, ROOT)}:{node.lineno}: {node.name} "
+                               f"({n} lines)")
+    return out
+
+
+def test_functions_are_short():
+    bad = _long_functions(MODULES.values())
+    assert not bad, f"functions longer than {MAX_LINES} lines:\n" + "\n".join(bad)
+
+
+def test_long_function_finder_finds_one(tmp_path):
+    p = tmp_path / "m.py"
+    p.write_text("def f():\n" + "    x = 1\n" * 3 + "\n\ndef g():\n    pass\n")
+    assert [b.split(": ")[1] for b in _long_functions([str(p)], limit=3)] == ["f (4 lines)"]

@@ -1,4 +1,4 @@
-"""Property-based bad input (issue 15): random wrong frames, import sidecars, run
+"""Property-based bad input: random wrong frames, import sidecars, run
 configs, dataset files and command lines. Every case ends in a correct result or a
 clean error naming the field, with a non-zero exit for the CLIs; never a traceback
 (any other exception fails the test), never a changed file on failure.

@@ -6,30 +6,37 @@ import os
 import pytest
 
 from jtus import bench, cost, models
+from jtus.bench import __main__ as bench_cli
 
 
 @pytest.mark.long
 def test_bench_smoke(capsys, tmp_path):
     out = tmp_path / "new" / "bench.json"  # its folder is created
-    assert bench.main(["--sizes", "64", "--factors", "4", "--repeats", "1", "--models",
-                       "dlctus", "jau", "tus", "--train-crop", "16", "--train-seq", "2",
-                       "--train-loss-frames", "1", "--train-batch", "1", "--train-warps", "bicubic",
-                       "nearest", "--json", "--out", str(out)]) == 0
+    assert bench_cli.main(["--sizes", "64", "--factors", "4", "--repeats", "1", "--models",
+                           "dlctus", "jau", "tus", "kpn", "--train-models", "dlctus", "mlp",
+                           "--train-crop", "16", "--train-seq", "2", "--train-loss-frames", "1",
+                           "--train-batch", "1", "--train-warps", "bicubic", "nearest", "--json",
+                           "--out", str(out)]) == 0
     report = json.loads(capsys.readouterr().out)
     assert json.loads(out.read_text()) == report
     md = (tmp_path / "new" / "bench.md").read_text()
     assert md == bench.markdown(report) + "\n" and "| dlctus | 64x64 | 4x |" in md
     assert sorted(os.listdir(tmp_path / "new")) == ["bench.json", "bench.md"]
     assert report["hardware"]["cores"] >= 1
-    assert {r["model"] for r in report["infer"]} == {"dlctus", "jau", "tus"}
-    dl = [r for r in report["infer"] if r["model"] == "dlctus"][0]
-    assert dl["ms"] > 0 and dl["network_ms"] > 0 and "torch_over_jtus" in dl
-    assert report["train"]["s_per_step"] > 0 and report["peak"]["matmul_gflops"] > 0
+    assert {r["model"] for r in report["infer"]} == {"dlctus", "jau", "tus", "kpn"}
+    by = {r["model"]: r for r in report["infer"]}
+    assert by["dlctus"]["ms"] > 0 and by["dlctus"]["network_ms"] > 0
+    # beside its PyTorch reference where the model has one (Spec.torch_reference)
+    assert "torch_over_jtus" in by["dlctus"] and "torch_over_jtus" in by["kpn"]
+    assert "torch_over_jtus" not in by["tus"] and "network_ms" not in by["tus"]
+    assert report["peak"]["matmul_gflops"] > 0
     tr = report["train"]
-    assert tr["frames_per_s"] == tr["batch"] * tr["seq"] / tr["s_per_step"]
-    assert tr["peak_mib"] > 0
-    assert [r["warp"] for r in report["train_warps"]] == ["bicubic", "nearest"]
-    assert report["train"] == report["train_warps"][0]
+    assert [(r["model"], r["warp"]) for r in tr] == [("dlctus", "bicubic"),
+                                                     ("dlctus", "nearest"), ("mlp", "-")]
+    for r in tr:
+        assert r["s_per_step"] > 0 and r["peak_mib"] > 0
+        assert r["frames_per_s"] == r["batch"] * r["seq"] / r["s_per_step"]
+    assert "torch_over_jtus" in tr[0] and "torch_over_jtus" not in tr[2]
 
 
 def test_dlctus_flop_count():
@@ -89,13 +96,14 @@ def test_profile_classifies_ops_by_their_jax_origin():
 @pytest.mark.long
 def test_bench_train_preset_sets_the_recipe_workload(capsys):
     from jtus import config, recipe
-    assert bench.main(["--what", "train", "--train-preset", "tiny", "--factors", "4",
-                       "--repeats", "1", "--no-torch", "--json"]) == 0
-    tr = json.loads(capsys.readouterr().out)["train"]
+    assert bench_cli.main(["--what", "train", "--train-models", "dlctus", "--train-preset",
+                           "tiny", "--factors", "4", "--repeats", "1", "--no-torch",
+                           "--json"]) == 0
+    tr = json.loads(capsys.readouterr().out)["train"][0]
     cfg = config.PRESETS["tiny"]
     plan = recipe.plan(cfg)
     assert (tr["crop"], tr["batch"], tr["seq"], tr["loss_frames"]) == (
         cfg.crop, cfg.batch, plan.window, plan.loss_frames)
     with pytest.raises(SystemExit):
-        bench.main(["--what", "train", "--train-preset", "nope", "--no-torch"])
-    assert "--train-preset: expected one of" in capsys.readouterr().err
+        bench_cli.main(["--what", "train", "--train-preset", "nope", "--no-torch"])
+    assert "--train-preset: invalid choice" in capsys.readouterr().err

@@ -1,7 +1,6 @@
-"""What the CLIs do with bad paths and names (issue 15, defects 10 and 13): each
-refuses them with one line naming the flag, exit code 2, before any work, and writes
-nothing. And what they write when the input is good: the values checked against
-quantities computed independently (issue 18)."""
+"""What the CLIs do with bad paths and names: each refuses them with one line naming
+the flag, exit code 2, before any work, and writes nothing. And what they write when the
+input is good: the values checked against quantities computed independently."""
 
 import os
 
@@ -141,14 +140,46 @@ def test_train_refuses_loss_frames_that_tbptt_would_ignore(tiny_data, tmp_path, 
 def test_bench_refuses_its_out_path_before_timing(tmp_path, capsys):
     """``--out`` is checked before the minute of timing, not after it (a missing parent
     folder is created: the report is written atomically)."""
-    from jtus import bench
+    from jtus.bench import __main__ as bench_cli
 
     a_file = tmp_path / "file.txt"
     a_file.write_text("x")
     for out, words in ((tmp_path, "is a folder"), (a_file / "r.json", "is a file")):
         with pytest.raises(SystemExit) as e:
-            bench.main(["--what", "peak", "--no-torch", "--out", str(out)])
+            bench_cli.main(["--what", "peak", "--no-torch", "--out", str(out)])
         assert e.value.code == 2
         err = capsys.readouterr().err
         assert "--out" in err and words in err, err
     assert sorted(os.listdir(tmp_path)) == ["file.txt"]
+
+
+def test_model_override_merges_with_the_preset_overrides(capsys):
+    """``--model-override`` adds to a preset's own model overrides: ``--preset hdr``
+    keeps ``hdr=True`` beside ``warp=bilinear``; a later value wins for the same key;
+    an unknown field or a malformed pair is refused, naming it."""
+    from jtus import recipe, train
+
+    cfg = train.config_from_argv(["--preset", "hdr", "--model-override", "warp=bilinear"])
+    assert dict(cfg.model_overrides) == {"hdr": True, "warp": "bilinear"}
+    model_cfg = recipe.model_config(cfg)
+    assert model_cfg.hdr is True and model_cfg.warp == "bilinear"
+    cfg = train.config_from_argv(["--preset", "hdr", "--model-override", "hdr=false",
+                                  "--model-override", "warp_a=-0.5"])
+    assert dict(cfg.model_overrides) == {"hdr": False, "warp_a": -0.5}
+    assert train.config_from_argv(["--preset", "tiny"]).model_overrides == ()
+    with pytest.raises(ValueError, match="no such field"):
+        train.config_from_argv(["--preset", "tiny", "--model-override", "wrap=bilinear"])
+    with pytest.raises(ValueError, match="KEY=VALUE"):
+        train.config_from_argv(["--preset", "tiny", "--model-override", "bilinear"])
+
+
+def test_remat_and_hoist_reach_the_config():
+    """Every rematerialization variant and the hoisted preparation are reachable from
+    the command line and land in the run's config."""
+    from jtus import config, train
+
+    for name, value in config.REMAT_CHOICES.items():
+        assert train.config_from_argv(["--preset", "tiny", "--remat", name]).remat == value
+    assert train.config_from_argv(["--preset", "tiny", "--hoist"]).hoist is True
+    with pytest.raises(ValueError, match="remat"):
+        config.Config(remat="sometimes")

@@ -21,10 +21,6 @@ def _frames(T=3, B=2, h=8, factor=4, seed=0):
     return seqdata.to_jax(seqdata.sequence(T=T, B=B, h=h, w=h, factor=factor, seed=seed))
 
 
-def _first(tree):
-    return jax.tree_util.tree_map(lambda x: x[0], tree)
-
-
 def test_parameter_counts():
     def conv(k, i, o):
         return k * k * i * o + o
@@ -60,7 +56,7 @@ def test_nsrr_unet_widths_chain_and_fast_halves_them():
     assert [p["kernel"].shape[2:] for p in params["unet"]] == list(zip(ins, widths + (3,)))
     frames, _ = _frames(T=2, B=1)
     m = nsrr.make(cfg)
-    outs, _ = rollout.outputs(m.step, params, m.init_state(_first(frames)), frames)
+    outs, _ = rollout.outputs(m.step, params, m.init_state(seqdata.first(frames)), frames)
     assert outs.shape == (2, 1, 32, 32, 3) and np.all(np.isfinite(np.asarray(outs)))
     assert nsrr.Config(fast=True).unet_widths() == (32, 16, 32, 32, 64, 64, 32, 32, 16)
     assert nsrr.Config(fast=True, unet=tuple(range(1, 10))).unet_widths() == \
@@ -98,7 +94,7 @@ def test_nsrr_reweighting_lies_in_0_10():
     config = nsrr.Config()
     params = nsrr.init(jax.random.PRNGKey(1), config)
     params["reweight"][-1] = jax.tree_util.tree_map(lambda x: 50 * x, params["reweight"][-1])
-    cur, _ = nsrr.features(params, _first(frames), config)
+    cur, _ = nsrr.features(params, seqdata.first(frames), config)
     warped = jnp.asarray(np.random.default_rng(0).normal(size=cur.shape[:3] + (48,)) * 5,
                          jnp.float32)
     w = np.asarray(nsrr.reweight_maps(params, cur, warped, config))
@@ -111,7 +107,7 @@ def test_nsrr_forward_matches_torch():
     config = nsrr.Config()
     params = nsrr.init(jax.random.PRNGKey(2), config)
     model = nsrr.make(config)
-    state = model.init_state(_first(frames))
+    state = model.init_state(seqdata.first(frames))
     prev_t = torch_models.nchw(np.asarray(state.previous))
     for t in range(3):  # the state carries real features from the second frame on
         fr = jax.tree_util.tree_map(lambda x: x[t], frames)
@@ -131,7 +127,7 @@ def test_kpn_forward_matches_torch_and_kernels_sum_to_one():
     config = kpn.Config()
     params = kpn.init(jax.random.PRNGKey(3), config)
     model = kpn.make(config)
-    fr = _first(frames)
+    fr = seqdata.first(frames)
     state = model.init_state(fr)
     x, jau, rep = kpn.prepare(state, fr, config)
     phase = np.asarray(kpn.phase_index(fr.jitter, config))
@@ -152,7 +148,7 @@ def test_kpn_uses_the_weight_set_of_the_jitter_phase():
     frames, _ = _frames(T=1, B=2)
     config = kpn.Config()
     params = kpn.init(jax.random.PRNGKey(4), config)
-    fr = _first(frames)
+    fr = seqdata.first(frames)
     phase = np.asarray(kpn.phase_index(fr.jitter, config))
     seq = config.phases()
     np.testing.assert_allclose(seq[phase], np.asarray(fr.jitter), atol=1e-6)
@@ -169,7 +165,7 @@ def test_kpn_uses_the_weight_set_of_the_jitter_phase():
 
 def test_mlp_removes_the_dc_term():
     frames, _ = _frames(T=1, B=1)
-    fr = _first(frames)
+    fr = seqdata.first(frames)
     model = mlp.make(mlp.Config())
     params = model.init(jax.random.PRNGKey(5))
     out, _ = model.step(params, (), fr)
@@ -192,7 +188,7 @@ def test_trains_with_decreasing_loss_and_evaluates(tiny_data, tmp_path, name, lo
     frames, targets = jax.tree_util.tree_map(jnp.asarray, batch)
     seen = []
     for _ in range(8):  # a few steps on one batch: the loss must go down
-        carry = rollout.start(model.init_state(_first(frames)), targets[0])
+        carry = rollout.start(model.init_state(seqdata.first(frames)), targets[0])
         ts, _, stats = step(ts, carry, frames, targets)
         seen.append(float(stats["loss"]))
     assert seen[-1] < seen[0], seen
@@ -211,7 +207,7 @@ def test_registry_builds_every_model():
     for name in models.NAMES:
         m = models.build(name, 4)
         outs, _ = rollout.outputs(m.step, m.init(jax.random.PRNGKey(0)),
-                                  m.init_state(_first(frames)), frames)
+                                  m.init_state(seqdata.first(frames)), frames)
         assert outs.shape == (2, 1, 32, 32, 3) and np.all(np.isfinite(np.asarray(outs))), name
 
 
@@ -233,14 +229,14 @@ def test_every_registered_model_has_a_cost_and_its_hooks():
 
 @pytest.mark.parametrize("factor", [4, 2])
 def test_kpn_matches_an_independent_torch_kpn(factor):
-    """jtus's KPN against tests/torch_kpn.py (its own parameter layout, Catmull-Rom,
+    """jtus's KPN against jtus/reference/torch_kpn.py (its own parameter layout, Catmull-Rom,
     input preparation and colour mix, from Herveau et al. and docs/comparison.md) over
     6 frames with motion, a camera cut in one element and the weight set of each
     frame's jitter phase."""
     import torch
 
     from jtus import models, rollout
-    from tests import torch_kpn
+    from jtus.reference import torch_kpn
 
     frames, _ = seqdata.sequence(T=6, B=2, h=24 // factor, w=32 // factor, factor=factor,
                                  seed=11, max_motion=1.5, reset_at=(3, 1))
@@ -271,13 +267,13 @@ def test_kpn_matches_an_independent_torch_kpn(factor):
 
 @pytest.mark.parametrize("factor", [4, 2])
 def test_nsrr_matches_an_independent_torch_nsrr(factor):
-    """jtus's NSRR against tests/torch_nsrr.py (its own nn.Sequential layout converted
+    """jtus's NSRR against jtus/reference/torch_nsrr.py (its own nn.Sequential layout converted
     by a function, zero-up-sampling, iterated warping and reweighting from the paper's
     text) over 7 frames (the 4-frame window rolls) with motion and a camera cut."""
     import torch
 
     from jtus import models, rollout
-    from tests import torch_nsrr
+    from jtus.reference import torch_nsrr
 
     frames, _ = seqdata.sequence(T=7, B=2, h=32 // factor, w=32 // factor, factor=factor,
                                  seed=12, max_motion=1.5, reset_at=(4, 1))
@@ -301,3 +297,273 @@ def test_nsrr_matches_an_independent_torch_nsrr(factor):
     # float32 through a 10-layer U-Net; measured max 2.6e-8 on outputs up to 0.07
     np.testing.assert_allclose(np.asarray(outs), ref, rtol=0, atol=2e-7)
     assert np.abs(ref).max() > 1e-2  # not a comparison of zeros
+
+
+def test_nsrr_reset_forgets_the_previous_features():
+    """NSRR on a reset frame runs as if its previous-frame features were zero (its
+    state at a sequence start). Catches: the reset flag ignored (garbage features
+    reweighted into the output)."""
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=2, B=2, reset_at=(1, 0)))
+    model = nsrr.make(nsrr.Config(factor=4, fast=True))
+    params = model.init(jax.random.PRNGKey(0))
+    frame = seqdata.at(frames, 1)
+    zero = model.init_state(frame)
+    garbage = nsrr.State(jnp.asarray(np.random.default_rng(2).uniform(
+        size=zero.previous.shape), jnp.float32))
+    out_zero, _ = model.step(params, zero, frame)
+    out_garbage, _ = model.step(params, garbage, frame)
+    np.testing.assert_allclose(out_garbage[0], out_zero[0], rtol=0, atol=1e-6)
+    assert float(jnp.abs(out_garbage[1] - out_zero[1]).max()) > 1e-4  # control
+
+
+@pytest.mark.parametrize("name", ["dlctus", "nsrr", "nsrr-fast", "kpn", "mlp"])
+def test_every_layer_draws_its_own_initialization(name):
+    """No two parameter arrays of a fresh model come from one random key. Under JAX's
+    partitionable threefry (its default), two draws from one key agree over their common
+    leading elements whatever their shapes, so a layer initialized with a key another
+    layer used correlates with it (r = 1.0 over that prefix; NSRR's two feature
+    extractors then start identical), which no forward or gradient test sees. Every
+    pair of arrays of at least 64 values must correlate below 0.9 over their common
+    prefix (independent draws: |r| of order 1/sqrt(n); measured largest 0.36, NSRR, over
+    a 64-value prefix; 1.0 for a shared key)."""
+    from jtus import models
+
+    params = models.build(name, 4).init(jax.random.PRNGKey(0))
+    leaves = [(jax.tree_util.keystr(k), np.asarray(v, np.float64).ravel())
+              for k, v in jax.tree_util.tree_leaves_with_path(params) if v.size >= 64]
+    assert len(leaves) >= 3, name
+    worst = (0.0, None)
+    for i, (ka, a) in enumerate(leaves):
+        for kb, b in leaves[i + 1:]:
+            n = min(a.size, b.size)
+            r = abs(np.corrcoef(a[:n], b[:n])[0, 1])
+            worst = max(worst, (r, f"{ka} and {kb}"))
+    assert worst[0] < 0.9, f"{name}: {worst[1]} share their draws (r = {worst[0]:.3f})"
+
+
+def test_kpn_batch_elements_are_independent():
+    """A batch of KPN frames gives each element's output and state as that element run
+    alone, each with its own jitter's weight set, also with more elements than the HR
+    image has rows (5 against 4). Catches the per-sample convolution looping over
+    another axis than the batch's."""
+    from jtus.models import kpn
+
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=1, B=5, h=1, w=2, seed=3))
+    frame = seqdata.at(frames, 0)
+    assert len(set(map(tuple, np.asarray(frame.jitter).tolist()))) > 1  # several phases
+    model = kpn.make(kpn.Config(factor=4))
+    params = model.init(jax.random.PRNGKey(1))
+    out, state = model.step(params, model.init_state(frame), frame)
+    for b in range(5):
+        one = jax.tree_util.tree_map(lambda x: x[b:b + 1], frame)
+        o, st = model.step(params, model.init_state(one), one)
+        np.testing.assert_allclose(out[b:b + 1], o, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(state.history[b:b + 1], st.history, rtol=0, atol=1e-6)
+
+
+def test_kpn_input_preparation():
+    """Herveau et al.'s network input at HR: the jitter-aligned bilinear colour,
+    linear depth and motion in HR pixels (both bilinearly up-sampled), then the
+    Catmull-Rom-reprojected history (colour and 5 hidden channels); a reset frame's
+    history is the fresh colour with zero hidden channels. Each part against numpy
+    (``seqdata.jau_reference``; jitter 0.5 is plain bilinear). Catches: channels out of
+    order, motion not scaled to HR pixels, depth not linearized, the reset ignored."""
+    from jtus.data.conventions import linearize_depth
+    from jtus.models import kpn
+
+    f = 4
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=2, B=2, reset_at=(1, 0), max_motion=0.0))
+    frame = seqdata.at(frames, 1)
+    config = kpn.Config(factor=f)
+    hist = jnp.asarray(np.random.default_rng(8).uniform(size=(2, 32, 32, 3 + kpn.HIDDEN)),
+                       jnp.float32)
+    x, _, _ = kpn.prepare(kpn.State(hist), frame, config)
+    x = np.asarray(x)
+    half = np.full((2, 2), 0.5)
+    jau = seqdata.jau_reference(np.asarray(frame.color), np.asarray(frame.jitter), f)
+    lin = linearize_depth(np.asarray(frame.depth, np.float64), config.near, config.far)
+    np.testing.assert_allclose(x[..., 0:3], jau, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(x[..., 3:4], seqdata.jau_reference(lin, half, f), rtol=0,
+                               atol=1e-6)
+    np.testing.assert_allclose(x[..., 4:6], f * seqdata.jau_reference(
+        np.asarray(frame.motion, np.float64), half, f), rtol=0, atol=1e-6)
+    # zero motion: the Catmull-Rom read at pixel centres is the history itself (element 1);
+    # element 0 is a reset: fresh colour, hidden channels zero
+    np.testing.assert_allclose(x[1, ..., 6:], np.asarray(hist[1]), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(x[0, ..., 6:9], jau[0], rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(x[0, ..., 9:], 0.0)
+    # and with motion, the motion channels follow it (f x the up-sampled LR vectors)
+    moving, _ = seqdata.to_jax(seqdata.sequence(T=2, B=2, max_motion=2.0))
+    frame = seqdata.at(moving, 1)
+    x, _, _ = kpn.prepare(kpn.State(hist), frame, config)
+    np.testing.assert_allclose(np.asarray(x)[..., 4:6], f * seqdata.jau_reference(
+        np.asarray(frame.motion, np.float64), half, f), rtol=0, atol=1e-5)
+
+
+def _dejitter_numpy(img, jx, jy):
+    """``img [h,w,C]`` read at the pixel centres of a frame sampled at ``(j + jx, i +
+    jy)``: bilinear at index-space position ``(j + 0.5 - jx, i + 0.5 - jy)``, indices
+    clamped to the edge."""
+    h, w = img.shape[:2]
+    out = np.zeros(img.shape, np.float64)
+    c = lambda a, n: min(max(a, 0), n - 1)  # noqa: E731
+    for i in range(h):
+        for j in range(w):
+            u, v = j + 0.5 - jx, i + 0.5 - jy
+            j0, i0 = int(np.floor(u)), int(np.floor(v))
+            tx, ty = u - j0, v - i0
+            row = lambda r: ((1 - tx) * img[c(r, h), c(j0, w)]  # noqa: E731
+                             + tx * img[c(r, h), c(j0 + 1, w)])
+            out[i, j] = (1 - ty) * row(i0) + ty * row(i0 + 1)
+    return out
+
+
+def _mlp_numpy(params, color, depth, f, gamma, slope, near, far, jitter=None, mode="ignore"):
+    """Spencer's MLP upscaler written out per LR pixel in numpy (float64): the 5x5
+    colour patch of each channel and the 5x5 linear-depth patch, both minus their
+    means, boosted by sign(r)|r|^(1/gamma); two leaky-ReLU layers; f*f outputs plus the
+    colour mean, placed at sub-pixel (dy, dx) = divmod(k, f) (jtus's choices: raster
+    patch order, colour before depth, edge-replicated borders). ``mode="input"``: the
+    offset of ``jitter [B,2]`` from the pixel centre (x, y) follows as two more inputs;
+    ``"dejitter"``: colour and linear depth are first read at the pixel centres."""
+    from jtus.data.conventions import linearize_depth
+
+    B, h, w, _ = color.shape
+    lin = linearize_depth(depth[..., 0].astype(np.float64), near, far)
+    color = color.astype(np.float64)
+    if mode == "dejitter":
+        color = np.stack([_dejitter_numpy(color[b], *jitter[b]) for b in range(B)])
+        lin = np.stack([_dejitter_numpy(lin[b, ..., None], *jitter[b])[..., 0]
+                        for b in range(B)])
+    pc = np.pad(color, ((0, 0), (2, 2), (2, 2), (0, 0)), mode="edge")
+    pd = np.pad(lin, ((0, 0), (2, 2), (2, 2)), mode="edge")
+    Ws = [(np.asarray(lyr["kernel"], np.float64), np.asarray(lyr["bias"], np.float64))
+          for lyr in params["layers"]]
+    boost = lambda r: np.sign(r) * np.abs(r) ** (1.0 / gamma)  # noqa: E731
+    out = np.zeros((B, h * f, w * f, 3))
+    for b in range(B):
+        for i in range(h):
+            for j in range(w):
+                dpatch = pd[b, i:i + 5, j:j + 5].reshape(-1)
+                for c in range(3):
+                    cpatch = pc[b, i:i + 5, j:j + 5, c].reshape(-1)
+                    v = np.concatenate([boost(cpatch - cpatch.mean()),
+                                        boost(dpatch - dpatch.mean())]
+                                       + ([np.asarray(jitter[b], np.float64) - 0.5]
+                                          if mode == "input" else []))
+                    for k, (W, bias) in enumerate(Ws):
+                        v = v @ W + bias
+                        if k < len(Ws) - 1:
+                            v = np.where(v > 0, v, slope * v)
+                    v = v + cpatch.mean()
+                    for s in range(f * f):
+                        dy, dx = divmod(s, f)
+                        out[b, i * f + dy, j * f + dx, c] = v[s]
+    return out
+
+
+def test_mlp_forward_and_gamma_against_numpy():
+    """Catches: gamma ignored (or only 2.0 boosted) or applied as r^gamma, the leaky
+    ReLU's slope left at its default, the mean not added back, sub-pixels shuffled in
+    another order, the jitter input dropped, swapped or not centred, the
+    de-jittering read on the wrong side or left out for depth."""
+    from jtus.models import mlp
+
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=1, B=2, h=6, w=5))
+    frame = seqdata.at(frames, 0)
+    frame = frame._replace(jitter=jnp.asarray([[0.125, 0.875], [0.625, 0.25]], jnp.float32))
+    for gamma, jit, slope in ((1.0, "dejitter", 0.01), (2.2, "dejitter", 0.01),
+                              (2.0, "input", 0.2), (1.0, "ignore", 0.01)):
+        config = mlp.Config(factor=4, gamma=gamma, jitter=jit, slope=slope)
+        params = mlp.init(jax.random.PRNGKey(1), config)
+        got = np.asarray(mlp.step(params, (), frame, config)[0])
+        want = _mlp_numpy(params, np.asarray(frame.color), np.asarray(frame.depth), 4, gamma,
+                          config.slope, config.near, config.far, np.asarray(frame.jitter), jit)
+        np.testing.assert_allclose(got, want, rtol=0, atol=5e-7)  # float32: 2.1e-7 measured
+    with pytest.raises(ValueError, match="jitter"):
+        mlp.Config(jitter="centre")
+
+
+@pytest.mark.parametrize("jit", ["ignore", "input", "dejitter"])
+def test_mlp_computes_in_float32_whatever_the_frame_type(jit):
+    """The MLP computes in float32, like its parameters: a half-precision frame and a
+    float64 frame (64-bit types on) give exactly the output of the same values in
+    float32, as float32. Catches: colour, depth or jitter left in the frame's own type
+    (``astype(None)`` is float32 only while 64-bit types are off)."""
+    from jtus.models import mlp
+
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=1, B=2, h=6, w=5))
+    frame = seqdata.at(frames, 0)._replace(jitter=jnp.asarray([[0.0078125, 0.875], [0.625, 0.25]]))
+    config = mlp.Config(factor=4, jitter=jit)
+    params = mlp.init(jax.random.PRNGKey(1), config)
+    for dtype in (jnp.float16, jnp.float64):
+        with jax.enable_x64(dtype == jnp.float64):
+            typed = seqdata.cast_frame(frame, dtype)
+            assert typed.color.dtype == dtype
+            want = mlp.step(params, (), seqdata.cast_frame(typed, jnp.float32), config)[0]
+            got = mlp.step(params, (), typed, config)[0]
+            assert got.dtype == jnp.float32, dtype
+            np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+
+
+def test_nsrr_ycbcr_option_converts_at_both_ends():
+    """``ycbcr=True``: the network sees BT.601 full-range YCbCr colour (written here
+    from the standard: Y = 0.299 R + 0.587 G + 0.114 B, Cb = 1/2 + (B - Y)/1.772,
+    Cr = 1/2 + (R - Y)/1.402) and its output is converted back to RGB: the same as the
+    RGB model fed YCbCr frames, its output converted back. Catches: the option
+    ignored at either end."""
+    from jtus.frame import Frame
+
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=2, B=1, reset_at=(1, 0)))
+    frame = seqdata.at(frames, 1)
+    rgb = np.asarray(frame.color, np.float64)
+    y = 0.299 * rgb[..., 0] + 0.587 * rgb[..., 1] + 0.114 * rgb[..., 2]
+    ycc = np.stack([y, 0.5 + (rgb[..., 2] - y) / 1.772, 0.5 + (rgb[..., 0] - y) / 1.402], -1)
+    yuv = nsrr.make(nsrr.Config(factor=4, fast=True, ycbcr=True))
+    plain = nsrr.make(nsrr.Config(factor=4, fast=True))
+    params = yuv.init(jax.random.PRNGKey(3))
+    got, _ = yuv.step(params, yuv.init_state(frame), frame)
+    alt = Frame(jnp.asarray(ycc, jnp.float32), *frame[1:])
+    out_ycc, _ = plain.step(params, plain.init_state(alt), alt)
+    o = np.asarray(out_ycc, np.float64)  # back to RGB, inverting the matrix above
+    r = o[..., 0] + 1.402 * (o[..., 2] - 0.5)
+    b = o[..., 0] + 1.772 * (o[..., 1] - 0.5)
+    g = (o[..., 0] - 0.299 * r - 0.114 * b) / 0.587
+    np.testing.assert_allclose(np.asarray(got), np.stack([r, g, b], -1), rtol=0, atol=1e-5)
+    assert float(jnp.abs(got - plain.step(params, plain.init_state(frame), frame)[0]).max()) > 1e-3
+
+
+@pytest.mark.parametrize("name", ["jau", "tus", "tus-mean", "kpn", "nsrr-fast", "dlctus"])
+def test_models_compute_in_float32_whatever_the_frame_type(name):
+    """Every model computes in float32, like its parameters: a float64 frame sequence
+    with 64-bit types on gives exactly the outputs and the state that the same values in
+    float32 give with them off (the default), as float32. Catches: a frame field cast
+    with ``astype(None)``, which is float32 only while 64-bit types are off: the state's
+    type then changes inside the scan, the outputs come out in float64, or a position
+    is computed in float64 (TUS's and NSRR's reprojection read with float64 motion:
+    about 1e-6 of a value, where a run under 64-bit types with float32 frames would be
+    cast the same way and match; its input read at a float64 jitter-aligned position).
+    Half-precision frames: the MLP's test above, and ``test_losses.py`` for the losses."""
+    from jtus import models
+
+    # three frames, the second a reset: the third reads a history (NSRR's starts at zero,
+    # so with two frames its warp read only zeros and a float64 position passed)
+    frames, _ = seqdata.sequence(T=3, B=1, h=6, w=5, reset_at=(1, 0))
+    # jitters that are not short binary fractions (the thesis's are), so that a position
+    # computed from them in float64 differs from the float32 one
+    jitter = np.random.default_rng(5).uniform(0.05, 0.95, frames.jitter.shape)
+    frames = seqdata.to_jax(frames._replace(jitter=jitter.astype(np.float32)))
+    model = models.build(name, 4)
+    params = model.init(jax.random.PRNGKey(0))
+    want, want_state = rollout.outputs(model.step, params, model.init_state(seqdata.first(frames)),
+                                       frames)
+    with jax.enable_x64(True):
+        fr = seqdata.cast_frame(frames, jnp.float64)
+        assert fr.color.dtype == jnp.float64
+        state0 = model.init_state(seqdata.first(fr))
+        got, got_state = rollout.outputs(model.step, params, state0, fr)
+        for g, w in zip(jax.tree_util.tree_leaves((got, got_state)),
+                        jax.tree_util.tree_leaves((want, want_state))):
+            assert g.dtype == w.dtype, (g.dtype, w.dtype)
+            np.testing.assert_array_equal(np.asarray(g), np.asarray(w))
+        assert got.dtype == jnp.float32

@@ -11,6 +11,7 @@ from jtus import sim, upsample
 from jtus.data import __main__ as data_cli
 from jtus.data import conventions, dataset, exr
 from jtus.sim import __main__ as sim_cli
+from jtus.sim import generate
 
 
 def test_layout_and_round_trip(tiny_data):
@@ -54,7 +55,7 @@ def test_crops_are_aligned(tiny_data):
 
 def test_generate_is_deterministic(tiny_data, tmp_path):
     again = tmp_path / "again.h5"
-    dataset.generate("tiny", again, progress=False)
+    generate.generate("tiny", again, progress=False)
 
     def contents(path):
         out = {}
@@ -81,7 +82,7 @@ def test_interrupted_generate_leaves_no_file(tmp_path, monkeypatch):
     monkeypatch.setattr(video.VideoRenderer, "video", interrupted)
     out = tmp_path / "sub" / "data.h5"
     with pytest.raises(KeyboardInterrupt):
-        dataset.generate("tiny", out, progress=False)
+        generate.generate("tiny", out, progress=False)
     assert not out.exists()
     assert os.listdir(tmp_path / "sub") == []
 
@@ -196,13 +197,6 @@ def test_cli_smoke(tiny_data, tmp_path, capsys):
     assert sim_cli.main(["preview", "--scene", "thin", "--out", str(out), "--size", "32",
                          "--frame", "1", "--spp", "1"]) == 0
     assert out.exists()
-
-
-def test_streaming_source_matches_interface():
-    src = dataset.StreamingSource(["objects"], size=(32, 32), factors=(4,), spp=1)
-    frames, targets = src.crops("train", 4, 2, 3, 16, np.random.default_rng(0))
-    assert frames.color.shape == (3, 2, 4, 4, 3) and targets.shape == (3, 2, 16, 16, 3)
-    assert frames.reset[0].all() and frames.color.dtype == np.float32
 
 
 def test_exr_import_refuses_bad_values_and_frame_numbering(tmp_path, capsys):

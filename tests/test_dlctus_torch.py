@@ -1,4 +1,4 @@
-"""DLCTUS in JAX against the independent PyTorch forward (tests/torch_dlctus.py)."""
+"""DLCTUS in JAX against the independent PyTorch forward (jtus/reference/torch_dlctus.py)."""
 
 
 import jax
@@ -9,7 +9,8 @@ import torch
 
 from jtus import losses, rollout
 from jtus.models import dlctus
-from tests import seqdata, torch_dlctus
+from jtus.reference import torch_dlctus
+from tests import seqdata
 
 
 def _torch_net(seed=0):

@@ -41,7 +41,7 @@ def test_running_mean_tus_settles_on_a_hold(holds, factor, jitter):
     384 frames stays within a 0.15 dB band (measured: at most 0.113 dB, 4x FSR 2,
     whose 128-frame cycle has then been seen three times; 0.000 for the thesis's 4x4
     pattern, whose samples land on HR pixel centres; `python experiments/hard_cases.py`).
-    The issue's form, within 0.1 dB of the best, does not hold at 2x: there the best
+    A tighter form, within 0.1 dB of the best, does not hold at 2x: there the best
     is an early peak 0.2-1.3 dB above the converged value (docs/simulator.md)."""
     p = _psnr_curve("tus-mean", factor, *holds[factor, jitter])
     assert np.all(np.isfinite(p))

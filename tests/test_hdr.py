@@ -9,11 +9,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jtus import losses, models, recipe, rollout, sampling
+from jtus import loading, losses, models, recipe, rollout, sampling
 from jtus.config import PRESETS
 from jtus.data import dataset
 from jtus.frame import Frame, validate
 from jtus.sampling import jitter_sequence
+from jtus.sim import generate
 from tests import seqdata
 
 
@@ -69,7 +70,7 @@ def _model(name):
     in the test, not at collection: every xdist worker collects every module, and
     building all of them there took 30-70 s per worker."""
     m = models.build(name, 4)
-    params = models.load("shipped", 4).params if name == "dlctus" else m.init(
+    params = loading.load("shipped", 4).params if name == "dlctus" else m.init(
         jax.random.PRNGKey(0))
     return m, params
 
@@ -134,7 +135,7 @@ def test_hdr_effect_renders_radiance_above_one_and_an_exposure_curve():
     from jtus.sim import VideoRenderer, get_scene, with_effects
 
     base = get_scene("random_3")
-    hdr = with_effects(base, dataset.preset("hdr").effects)
+    hdr = with_effects(base, generate.preset("hdr").effects)
     assert "hdr" in hdr.effects and "hdr" not in base.effects
     assert sum(o.material.emission > 0 for o in hdr.objects) >= 2  # emitters drawn
     v = VideoRenderer(hdr, (48, 48), (4,), 4).video("train", 0, 6)
@@ -172,7 +173,7 @@ def test_adding_hdr_to_the_effect_list_left_every_randomized_scene_as_it_was():
 @pytest.fixture(scope="module")
 def hdr_data(tmp_path_factory):
     out = tmp_path_factory.mktemp("hdr") / "hdr-tiny.h5"
-    return dataset.generate("hdr-tiny", str(out), progress=False)
+    return generate.generate("hdr-tiny", str(out), progress=False)
 
 
 def test_hdr_dataset_carries_exposure_into_videos_and_crops(hdr_data):
@@ -238,7 +239,7 @@ def test_moving_highlight_leaves_no_longer_ghost_than_tus():
     fr, front = highlight()
     tus = models.build("tus", 4, hdr=True)
     dl = models.build("dlctus", 4, hdr=True)
-    params = models.load("shipped", 4).params
+    params = loading.load("shipped", 4).params
     t_tus = trail_length(tus, {}, fr, front)
     t_dl = trail_length(dl, params, fr, front)
     assert t_dl <= t_tus, (t_dl, t_tus)

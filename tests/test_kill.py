@@ -1,4 +1,4 @@
-"""SIGKILL at a random moment (issue 15): afterwards every output file is the previous
+"""SIGKILL at a random moment: afterwards every output file is the previous
 complete version or the new complete version, never a mix, and a killed training run
 resumes to the parameters of an uninterrupted one.
 
@@ -21,6 +21,7 @@ import pytest
 from jtus import checkpoint, recipe, train
 from jtus.config import PRESETS
 from jtus.data import dataset
+from jtus.sim import generate
 
 KILLS = int(os.environ.get("JTUS_KILL_POINTS", "1"))
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -75,14 +76,14 @@ def _temp_files(folder):
 @pytest.mark.parametrize("k", range(KILLS))
 def test_generate_killed_leaves_the_previous_dataset(tmp_path, k):
     out = tmp_path / "d.h5"
-    dataset.generate("tiny", out, progress=False)
+    generate.generate("tiny", out, progress=False)
     delay = np.random.default_rng([1, k]).uniform(0.0, 6.0)
     proc, before = _interrupt_generate(tmp_path, out, signal.SIGKILL, delay)
     # the previous version or the new one, whole: a kill that lands after the new file's
     # rename, while the process exits, leaves the new version (generation is
     # deterministic, so the new version is the bytes of an uninterrupted run)
     complete = tmp_path / "complete" / "d.h5"
-    dataset.generate("diverse-tiny", complete, progress=False)
+    generate.generate("diverse-tiny", complete, progress=False)
     assert _digest(out) in (before, _digest(complete))
     with dataset.Dataset(out) as ds:
         assert ds.videos("test")
@@ -96,7 +97,7 @@ def test_generate_killed_leaves_the_previous_dataset(tmp_path, k):
 @pytest.mark.parametrize("k", range(KILLS))
 def test_train_killed_resumes_to_the_uninterrupted_parameters(tmp_path, k, sig):
     data = tmp_path / "tiny.h5"
-    dataset.generate("tiny", data, progress=False)
+    generate.generate("tiny", data, progress=False)
     config = dataclasses.replace(PRESETS["tiny"], dataset=str(data), epochs=8)
     full, _ = train.train_and_evaluate(config, tmp_path / "full", progress=False)
     work = tmp_path / "cut"
@@ -126,7 +127,7 @@ def test_train_killed_resumes_to_the_uninterrupted_parameters(tmp_path, k, sig):
 @pytest.mark.parametrize("k", range(KILLS))
 def test_generate_terminated_removes_its_temporary_file(tmp_path, k):
     out = tmp_path / "d.h5"
-    dataset.generate("tiny", out, progress=False)
+    generate.generate("tiny", out, progress=False)
     before = _digest(out)
     delay = np.random.default_rng([3, k]).uniform(0.0, 6.0)
     proc, _ = _interrupt_generate(tmp_path, tmp_path / "new.h5", signal.SIGTERM, delay)

@@ -1,5 +1,6 @@
 """Losses of thesis sec. 4.3.3, on hand-made cases."""
 
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -197,7 +198,7 @@ def test_kpn_loss_reads_low_precision_frames_in_float32(rng):
     the same values in float32: the jitter-aligned input the alias mask compares with
     is formed in float32, not in the frame's dtype (the loss casts, and the bilinear
     JAU promotes to float32 by itself, so mutating either alone changes nothing:
-    experiments/mutation.py lists those mutants as equivalent)."""
+    tools/mutation.py lists those mutants as equivalent)."""
     f, b, h, w = 2, 1, 4, 5
     shape = (b, h * f, w * f, 3)
     out, target, prev_out, prev_target = (jnp.asarray(rng.uniform(size=shape), jnp.float32)
@@ -234,3 +235,49 @@ def test_temporal_loss_warps_with_the_method_it_is_given(rng, method):
     np.testing.assert_allclose(got, want, rtol=1e-5)
     other = "catmull_rom" if method == "bilinear" else "bilinear"
     assert abs(got - float(losses.make("st-linear", f, theta=theta, method=other)(*args))) > 1e-4
+
+
+def _shifted_previous_errors(f=4, shift=1, seed=5):
+    """Current and previous outputs/targets and a frame whose LR motion is ``shift``
+    LR pixels to the right everywhere: the previous value under HR pixel (y, x) is at
+    (y, x + f*shift), inside the image only for x + f*shift < W (docs/conventions.md)."""
+    from jtus.frame import Frame
+
+    rng = np.random.default_rng(seed)
+    B, H, W = 2, 16, 20
+    out, target, prev_out, prev_target = (rng.uniform(size=(B, H, W, 3)) for _ in range(4))
+    h, w = H // f, W // f
+    motion = np.zeros((B, h, w, 2))
+    motion[..., 0] = shift
+    frame = Frame(jnp.zeros((B, h, w, 3)), jnp.full((B, h, w, 1), 0.5), jnp.asarray(motion),
+                  jnp.full((B, 2), 0.5), None)
+    x = out - target
+    y = np.zeros_like(x)
+    s = f * shift
+    y[:, :, :W - s] = (prev_out - prev_target)[:, :, s:]  # f_prev, eq. 48
+    args = tuple(jnp.asarray(a) for a in (out, target, prev_out, prev_target))
+    return args, frame, x, y
+
+
+def test_st_and_st_linear_follow_thesis_eq_48_to_55(x64):
+    """L_st (eq. 51-52, and equal to eq. 48-49 divided by 1 + θ̂ with θ = θ̂/(1+θ̂))
+    and L_st-linear (eq. 54-55), each the mean over pixels and channels of its
+    per-element form, written here from the thesis, not from losses.py. Catches: a
+    sign or factor of θ, the temporal term read at the wrong pixel or without the
+    out-of-image mask, y not zeroed without a previous frame."""
+    args, frame, x, y = _shifted_previous_errors()
+    for theta in (0.0, 0.3, 0.5, 0.9):
+        st = np.mean(x * x + y * y - 2 * theta * x * y)  # eq. 52
+        th_hat = theta / (1 - theta)  # eq. 50's substitution, inverted
+        st_hat = np.mean(x * x + y * y + th_hat * (x - y) ** 2)  # eq. 49
+        np.testing.assert_allclose(st, st_hat / (1 + th_hat), rtol=1e-12)
+        lin = np.mean(np.abs(x) + np.abs(y) + theta * (np.abs(x - y) - np.abs(x) - np.abs(y)))
+        got_st = float(losses.make("st", 4, theta=theta)(*args, jnp.asarray(True), frame))
+        got_lin = float(losses.make("st-linear", 4, theta=theta)(*args, jnp.asarray(True), frame))
+        np.testing.assert_allclose(got_st, st, rtol=1e-12)
+        np.testing.assert_allclose(got_lin, lin, rtol=1e-12)
+    # no previous frame: y = 0, both reduce to the current error alone
+    got = float(losses.make("st-linear", 4, theta=0.5)(*args, jnp.asarray(False), frame))
+    np.testing.assert_allclose(got, np.mean(np.abs(x)), rtol=1e-12)
+    got = float(losses.make("st", 4, theta=0.5)(*args, jnp.asarray(False), frame))
+    np.testing.assert_allclose(got, np.mean(x * x), rtol=1e-12)

@@ -30,10 +30,6 @@ def _setup(T=6, factor=4, seed=0, config=None, dtype=np.float32, **kw):
     return model, params, frames, targets
 
 
-def _first(tree):
-    return jax.tree_util.tree_map(lambda x: x[0], tree)
-
-
 def test_param_count_matches_thesis_network():
     # down 4x4x8x32 + 32; four blocks of two 3x3x32x32 + 32 convolutions.
     params = dlctus.init(jax.random.PRNGKey(0))
@@ -65,7 +61,8 @@ def test_scan_equals_python_loop_values_and_vjp(x64):
             outs.append(out)
         return jnp.stack(outs), s
 
-    net_in, _, _ = dlctus.prepare(state0, _first(frames), model.config)
+    pre = dlctus.prepare_frame(seqdata.first(frames), model.config)
+    net_in, _, _ = dlctus.reproject(state0, pre, model.config)
     o = dlctus.network(params, net_in, model.config)
     assert 0.05 < float(o.min()) and float(o.max()) < 0.95
     (o1, s1), vjp1 = jax.vjp(scanned, params, state0)
@@ -84,7 +81,7 @@ def test_video_runs_from_the_first_state_float64(x64):
     from ``init_state`` of the first frame, and a clear error on non-finite input."""
     model, params, frames, _ = _setup(T=4, dtype=np.float64)
     got = rollout.video(model, params, frames)
-    s, want = model.init_state(_first(frames)), []
+    s, want = model.init_state(seqdata.first(frames)), []
     for t in range(4):
         out, s = model.step(params, s, jax.tree_util.tree_map(lambda x: x[t], frames))
         want.append(out)
@@ -98,7 +95,7 @@ def test_check_grads_float64_three_frames(x64):
     config = dlctus.Config(factor=4, warp="bilinear", dtype="float64")
     model, params, frames, targets = _setup(T=3, config=config, dtype=np.float64)
     frames = frames._replace(reset=None)
-    state0 = model.init_state(_first(frames))
+    state0 = model.init_state(seqdata.first(frames))
     sub = {"down": params["down"], "block4": params["block4"]}
 
     def loss(p):
@@ -110,7 +107,7 @@ def test_check_grads_float64_three_frames(x64):
 
 
 def _loss_value_and_grad(model, params, frames, targets, K, **kw):
-    carry = rollout.start(model.init_state(_first(frames)), targets[0])
+    carry = rollout.start(model.init_state(seqdata.first(frames)), targets[0])
 
     def f(p):
         return rollout.window_loss(model.step, losses.make("st-linear", 4, theta=0.5), p,
@@ -145,7 +142,7 @@ def test_hoisted_preparation_equals_the_plain_step_float64(x64, warp):
     frames = frames._replace(color=frames.color * 4.0,
                              exposure=jnp.linspace(0.2, 0.5, 12).reshape(6, 2),
                              reset=jnp.zeros((6, 2), bool).at[0].set(True).at[3, 1].set(True))
-    carry = rollout.start(model.init_state(_first(frames)), targets[0])
+    carry = rollout.start(model.init_state(seqdata.first(frames)), targets[0])
     loss_fn = losses.make("st-linear", 4, theta=0.5)
     advance, prepare = rollout.parts(model)
     assert prepare is not None
@@ -164,7 +161,7 @@ def test_hoisted_preparation_equals_the_plain_step_float64(x64, warp):
     leaves = jax.tree_util.tree_leaves
     for a, b in zip(leaves((g1, c1, k1)), leaves((g0, c0, k0))):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-14)
-    frame = _first(frames)
+    frame = seqdata.first(frames)
     out0, s0 = model.step(params, carry.state, frame)
     out1, s1 = advance(params, carry.state, prepare(frame))
     np.testing.assert_array_equal(out1, out0)
@@ -182,8 +179,8 @@ def test_remat_rejects_an_unknown_policy():
 def test_tbptt_with_full_window_equals_bptt():
     model, params, frames, targets = _setup(T=6)
     (l0, _), g0 = _loss_value_and_grad(model, params, frames, targets, 2)
-    carry = rollout.start(model.init_state(_first(frames)), targets[0])
-    results, _ = rollout.tbptt_grads(model.step, losses.make("st-linear", 4, theta=0.5), params,
+    carry = rollout.start(model.init_state(seqdata.first(frames)), targets[0])
+    results, _ = seqdata.tbptt_grads(model.step, losses.make("st-linear", 4, theta=0.5), params,
                                      carry, frames, targets, k1=2, k2=6)
     assert len(results) == 1
     l1, g1 = results[0]
@@ -205,10 +202,10 @@ def test_tbptt_windows_chain_states():
     """Each window starts from the state after k1 frames of the previous one: the
     carried history equals the plain rollout's at that time."""
     model, params, frames, targets = _setup(T=8)
-    carry = rollout.start(model.init_state(_first(frames)), targets[0])
-    _, last = rollout.tbptt_grads(model.step, losses.make("l1", 4), params, carry, frames,
+    carry = rollout.start(model.init_state(seqdata.first(frames)), targets[0])
+    _, last = seqdata.tbptt_grads(model.step, losses.make("l1", 4), params, carry, frames,
                                   targets, k1=2, k2=4)
-    outs, _ = rollout.outputs(model.step, params, model.init_state(_first(frames)), frames)
+    outs, _ = rollout.outputs(model.step, params, model.init_state(seqdata.first(frames)), frames)
     # The last window is [4, 8); the carry kept after its first k1=2 frames is time 6.
     np.testing.assert_allclose(last.prev_out, outs[5], atol=1e-6)
 
@@ -219,7 +216,7 @@ def test_formulations_equal_standard(formulation, factor):
     _, params, frames, _ = _setup(T=4, factor=factor)
     model = dlctus.make(dlctus.Config(factor=factor, formulation="standard"))
     other = dlctus.make(dlctus.Config(factor=factor, formulation=formulation))
-    s0 = model.init_state(_first(frames))
+    s0 = model.init_state(seqdata.first(frames))
     o1, s1 = rollout.outputs(model.step, params, s0, frames)
     o2, s2 = rollout.outputs(other.step, params, s0, frames)
     np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-6)
@@ -234,7 +231,7 @@ def test_opt2_gradients_equal_standard_float64(x64, factor):
 
     def loss(p, formulation):
         m = dlctus.make(dlctus.Config(factor=factor, dtype="float64", formulation=formulation))
-        outs, _ = rollout.outputs(m.step, p, m.init_state(_first(frames)), frames)
+        outs, _ = rollout.outputs(m.step, p, m.init_state(seqdata.first(frames)), frames)
         return jnp.mean(jnp.abs(outs - targets))
 
     g1 = jax.grad(loss)(params, "standard")
@@ -274,7 +271,7 @@ def test_step_is_advance_of_the_prepared_frame():
     # a config unlike the default in every field the step reads
     config = dlctus.Config(factor=2, warp="bilinear", formulation="standard")
     model, params, frames, _ = _setup(T=2, config=config, factor=2)
-    state = model.init_state(_first(frames))
+    state = model.init_state(seqdata.first(frames))
     frame = jax.tree_util.tree_map(lambda x: x[1], frames)
     got = dlctus.step(params, state, frame, model.config)
     want = model.step(params, state, frame)
@@ -289,11 +286,11 @@ def test_network_computes_in_its_dtype(formulation):
     network's (0.0101 at most measured on activations up to 1.26; bound 0.02). Catches:
     the parameters or the input cast to ``None`` (float32), which would run it in float32."""
     model, params, frames, _ = _setup(T=2)
-    state = model.init_state(_first(frames))
+    state = model.init_state(seqdata.first(frames))
     frame = jax.tree_util.tree_map(lambda x: x[1], frames)
     c32 = dlctus.Config(factor=4, formulation=formulation)
     c16 = dlctus.Config(factor=4, formulation=formulation, dtype="bfloat16")
-    x, _, _ = dlctus.prepare(state, frame, c32)
+    x, _, _ = dlctus.reproject(state, dlctus.prepare_frame(frame, c32), c32)
     a, b = dlctus.network(params, x, c32), dlctus.network(params, x, c16)
     assert a.dtype == jnp.float32 and b.dtype == jnp.bfloat16
     np.testing.assert_allclose(np.asarray(b, np.float32), a, rtol=0, atol=0.02)
@@ -306,7 +303,7 @@ def test_step_labels_its_stages_for_the_profile():
     from jtus import profile
 
     model, params, frames, _ = _setup(T=2)
-    state = model.init_state(_first(frames))
+    state = model.init_state(seqdata.first(frames))
     frame = jax.tree_util.tree_map(lambda x: x[1], frames)
     # the lowered HLO, not the compiled one: a compiled program can come from the
     # persistent compilation cache, whose key leaves op names out (a renamed scope then
@@ -326,11 +323,11 @@ def test_step_labels_its_stages_for_the_profile():
 
 def test_reset_equals_fresh_init_state():
     model, params, frames, _ = _setup(T=4, reset_at=(2, 1))
-    s0 = model.init_state(_first(frames))
+    s0 = model.init_state(seqdata.first(frames))
     outs, _ = rollout.outputs(model.step, params, s0, frames)
     # Sample 1 restarted at frame 2: same as a fresh rollout from frame 2 on.
     tail = jax.tree_util.tree_map(lambda x: x[2:], frames)
-    fresh, _ = rollout.outputs(model.step, params, model.init_state(_first(tail)), tail)
+    fresh, _ = rollout.outputs(model.step, params, model.init_state(seqdata.first(tail)), tail)
     np.testing.assert_allclose(outs[2:, 1], fresh[:, 1], rtol=0, atol=1e-6)
     assert np.abs(np.asarray(outs[2:, 0] - fresh[:, 0])).max() > 1e-3  # sample 0 did not reset
 
@@ -348,7 +345,7 @@ def test_train_step_traces_once_across_tbptt_windows():
     opt = optax.adam(1e-3)
     step = train.make_train_step(model, counted, opt, loss_frames=2, keep_at=2)
     ts = train.create_train_state(params, opt)
-    carry = rollout.start(model.init_state(_first(frames)), targets[0])
+    carry = rollout.start(model.init_state(seqdata.first(frames)), targets[0])
     seen = []
     for w in rollout.tbptt_windows(8, 2, 4):
         sl = jax.tree_util.tree_map(lambda x: x[w.start:w.stop], (frames, targets))
@@ -412,7 +409,7 @@ def test_reverse_time_backward_equals_autodiff_float64(x64):
     config = dlctus.Config(factor=4, dtype="float64")
     model, params, frames, targets = _setup(T=6, config=config, dtype=np.float64)
     frames = frames._replace(reset=jnp.zeros((6, 2), bool).at[0].set(True).at[3, 1].set(True))
-    carry = rollout.start(model.init_state(_first(frames)), targets[0])
+    carry = rollout.start(model.init_state(seqdata.first(frames)), targets[0])
     loss_fn = losses.make("st-linear", 4, theta=0.5)
 
     def f(p, remat):

@@ -6,7 +6,7 @@ float64, with gradients with respect to the parameters and to the incoming carry
 
 The DLCTUS tests in ``test_rollout.py`` check the same identities on the real network
 (tens of seconds of compiling each); these run in seconds, so they are the focused
-selection the mutation testing of ``jtus/rollout.py`` runs (``experiments/mutation.py``).
+selection the mutation testing of ``jtus/rollout.py`` runs (``tools/mutation.py``).
 
 The reference mirrors two choices of ``rollout``: the carried previous output and
 target are float32 (a temporal loss reads them; a float64 model's carry is rounded),
@@ -24,6 +24,7 @@ import pytest
 from jtus import rollout
 from jtus.frame import Frame
 from jtus.models.base import Model
+from tests import seqdata
 
 T, B, H, W = 6, 2, 3, 4
 
@@ -87,17 +88,13 @@ def _loss(out, target, prev_out, prev_target, has_prev, frame):
     return spatial + 0.7 * jnp.where(has_prev, temporal, 0.0) + 0.3 * jnp.mean(frame.depth * out)
 
 
-def _at(tree, t):
-    return jax.tree_util.tree_map(lambda x: x[t], tree)
-
-
 def _loop(p, carry, frames, targets, loss_frames, keep_at=None):
     """``window_loss`` written out frame by frame: returns (loss, (last, kept))."""
     n = frames.color.shape[0]
     state, prev_out, prev_target, has_prev = carry
     total, kept = 0.0, None
     for t in range(n):
-        frame = _at(frames, t)
+        frame = seqdata.at(frames, t)
         out, state = _step(p, state, frame)
         if t >= n - loss_frames:
             total = total + _loss(out, targets[t], prev_out, prev_target, has_prev, frame)
@@ -111,7 +108,7 @@ def _loop(p, carry, frames, targets, loss_frames, keep_at=None):
 def _carry_in(frames, targets, has_prev):
     """A carry as one in the middle of a video (nonzero previous output and target)."""
     rng = np.random.default_rng(7)
-    return rollout.Carry(_init_state(_at(frames, 0)) + 0.05,
+    return rollout.Carry(_init_state(seqdata.at(frames, 0)) + 0.05,
                          jnp.asarray(rng.uniform(0.1, 0.9, targets.shape[1:]), jnp.float32),
                          jnp.asarray(rng.uniform(0.1, 0.9, targets.shape[1:]), jnp.float32),
                          jnp.asarray(has_prev))
@@ -146,7 +143,7 @@ def test_start_is_an_empty_float32_carry():
 def test_first_state_reads_the_first_frame(x64):
     frames, _ = _frames()
     np.testing.assert_array_equal(rollout.first_state(_model(False), frames),
-                                  _init_state(_at(frames, 0)))
+                                  _init_state(seqdata.at(frames, 0)))
 
 
 def test_parts_of_a_model_with_and_without_the_split():
@@ -159,11 +156,11 @@ def test_parts_of_a_model_with_and_without_the_split():
                                 {"remat": "dots_no_batch"}, {"unroll": 2}, {"unroll": True}])
 def test_outputs_equal_the_loop(x64, kw):
     frames, _ = _frames()
-    p, s0 = _params(), _init_state(_at(frames, 0))
+    p, s0 = _params(), _init_state(seqdata.at(frames, 0))
     outs, last = rollout.outputs(_step, p, s0, frames, **kw)
     s, want = s0, []
     for t in range(T):
-        o, s = _step(p, s, _at(frames, t))
+        o, s = _step(p, s, seqdata.at(frames, t))
         want.append(o)
     # compiled scan against the loop op by op: XLA may fuse differently (1 ulp seen)
     _close((outs, last), (jnp.stack(want), s), rtol=1e-14, atol=1e-15)
@@ -171,7 +168,7 @@ def test_outputs_equal_the_loop(x64, kw):
 
 def test_outputs_check_inputs_at_the_boundary_only(x64):
     frames, _ = _frames()
-    p, s0 = _params(), _init_state(_at(frames, 0))
+    p, s0 = _params(), _init_state(seqdata.at(frames, 0))
     bad = frames._replace(depth=frames.depth.at[4, 1, 0, 2, 0].set(jnp.nan))
     with pytest.raises(ValueError, match="depth"):
         rollout.outputs(_step, p, s0, bad)
@@ -188,7 +185,7 @@ def test_video_runs_from_the_first_state(x64):
     frames, _ = _frames()
     model, p = _model(True), _params()
     got = rollout.video(model, p, frames)
-    want, _ = rollout.outputs(_step, p, _init_state(_at(frames, 0)), frames)
+    want, _ = rollout.outputs(_step, p, _init_state(seqdata.at(frames, 0)), frames)
     _close(got, want, rtol=1e-14, atol=1e-15)
     with pytest.raises(ValueError, match="color"):
         rollout.video(model, p, frames._replace(color=frames.color.at[1].set(jnp.nan)))
@@ -197,7 +194,7 @@ def test_video_runs_from_the_first_state(x64):
 @pytest.mark.parametrize("unroll", [1, 3])
 def test_metrics_see_the_previous_frame_and_keep_no_outputs(x64, unroll):
     frames, targets = _frames()
-    p, s0 = _params(), _init_state(_at(frames, 0))
+    p, s0 = _params(), _init_state(seqdata.at(frames, 0))
 
     def metric(out, target, prev_out, prev_target, has_prev, frame):
         return {"err": jnp.mean(jnp.abs(out - target), axis=(1, 2, 3)),
@@ -209,9 +206,9 @@ def test_metrics_see_the_previous_frame_and_keep_no_outputs(x64, unroll):
     s, prev_out, prev_target, has_prev, want = s0, jnp.zeros((B, H, W, 3), jnp.float32), \
         jnp.zeros((B, H, W, 3), jnp.float32), False, []
     for t in range(T):
-        o, s = _step(p, s, _at(frames, t))
+        o, s = _step(p, s, seqdata.at(frames, t))
         want.append(metric(o, targets[t], prev_out, prev_target, jnp.asarray(has_prev),
-                           _at(frames, t)))
+                           seqdata.at(frames, t)))
         prev_out, prev_target, has_prev = o.astype(jnp.float32), targets[t].astype(
             jnp.float32), True
     want = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *want)
@@ -394,8 +391,8 @@ def test_tbptt_grads_chain_windows_like_the_loop(x64, k1, k2):
     loop; the returned carry is the one the next window would start from."""
     frames, targets = _frames(T=8, reset_at=((5, 0),))
     p = _params()
-    c = rollout.start(_init_state(_at(frames, 0)), targets[0])
-    results, last = rollout.tbptt_grads(_step, _loss, p, c, frames, targets, k1=k1, k2=k2)
+    c = rollout.start(_init_state(seqdata.at(frames, 0)), targets[0])
+    results, last = seqdata.tbptt_grads(_step, _loss, p, c, frames, targets, k1=k1, k2=k2)
     windows = rollout.tbptt_windows(8, k1, k2)
     assert len(results) == len(windows)
     for (loss, grads), w in zip(results, windows):
@@ -408,6 +405,6 @@ def test_tbptt_grads_chain_windows_like_the_loop(x64, k1, k2):
         c = kept if kept is not None else end
     _close(last, c)
     # the next window would start at frame 8 - k2 + k1: its state is the loop's there
-    outs, _ = rollout.outputs(_step, p, _init_state(_at(frames, 0)), frames)
+    outs, _ = rollout.outputs(_step, p, _init_state(seqdata.at(frames, 0)), frames)
     np.testing.assert_allclose(last.prev_out, outs[8 - k2 + k1 - 1].astype(jnp.float32),
                                rtol=2.4e-7, atol=0)

@@ -28,7 +28,7 @@ SCRIPT = textwrap.dedent("""
     copy = lambda: jax.tree_util.tree_map(jnp.copy, params)  # the step donates its state
     one, _, s1 = step(train.create_train_state(copy(), opt), carry(), frames, targets)
     mesh = sharding.data_mesh(4)
-    ts = sharding.shard(train.create_train_state(copy(), opt), mesh, axis=10**6)
+    ts = sharding.replicate(train.create_train_state(copy(), opt), mesh)
     fr, tg = sharding.shard((frames, targets), mesh, axis=1)
     assert len(fr.color.sharding.device_set) == 2
     two, _, s2 = step(ts, sharding.shard(carry(), mesh, axis=0), fr, tg)

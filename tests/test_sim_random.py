@@ -12,8 +12,8 @@ from jtus import sim
 from jtus.data import dataset
 from jtus.sampling import jitter_sequence
 from jtus.sampling.jitter import VARIETY
-from jtus.sim import paths, randomized, render, textures
 from jtus.sim import __main__ as sim_cli
+from jtus.sim import generate, paths, randomized, render, textures
 from jtus.sim.scene import EFFECTS, KINDS, LDR_EFFECTS, PATHS, TEXTURES
 from jtus.sim.video import VideoRenderer
 
@@ -31,7 +31,7 @@ def test_random_scene_is_deterministic_and_round_trips_json():
     assert sim.random_scene(5, effects=EFFECTS).path == sim.random_scene(5).path
 
 
-def test_random_family_spans_what_the_issue_asks():
+def test_random_family_spans_every_kind_texture_path_and_effect():
     """Over the diverse preset's 200 training seeds: 8-40 visible objects per scene,
     every object kind, texture, path kind and effect; speeds from holds to fast."""
     kinds, texs, path_kinds, effects, speeds = set(), set(), set(), set(), []
@@ -63,7 +63,7 @@ def test_random_scenes_reach_fast_motion():
 
 
 def test_split_seed_ranges_are_disjoint():
-    p = dataset.preset("diverse")
+    p = generate.preset("diverse")
     names = {sp: set(p.splits[sp][0]) for sp in dataset.SPLITS}
     assert len(names["train"]) == 200
     assert not names["train"] & names["val"] and not names["train"] & names["test"]
@@ -169,10 +169,10 @@ def test_seeded_textures_are_bounded_and_prefiltered(name):
 
 @pytest.mark.parametrize("name", VARIETY)
 def test_every_jitter_sequence_is_stored_and_read_back(name, tmp_path):
-    p = dataset.Preset((16, 16), (2, 4), 1, 1, {"train": ((), 1, 1), "val": ((), 1, 1),
+    p = generate.Preset((16, 16), (2, 4), 1, 1, {"train": ((), 1, 1), "val": ((), 1, 1),
                                                 "test": (("objects",), 1, 5)}, (name,))
     out = tmp_path / "j.h5"
-    dataset.generate(p, out, progress=False)
+    generate.generate(p, out, progress=False)
     with dataset.Dataset(out) as ds:
         g = ds.file["test/objects_00"]
         assert g.attrs["jitter_sequence"] == name and g.attrs["jitter_phase"] == 0
@@ -183,12 +183,12 @@ def test_every_jitter_sequence_is_stored_and_read_back(name, tmp_path):
 
 
 def test_variety_draws_per_video_and_records_it(tmp_path):
-    draws = {dataset.video_jitter(VARIETY, f"random_{s}", "train", 0) for s in range(40)}
+    draws = {generate.video_jitter(VARIETY, f"random_{s}", "train", 0) for s in range(40)}
     assert {d[0] for d in draws} == set(VARIETY)
     assert len({d[1] for d in draws}) > 10  # phases vary too
-    assert dataset.video_jitter(("thesis",), "random_1", "train", 0) == ("thesis", 0)
+    assert generate.video_jitter(("thesis",), "random_1", "train", 0) == ("thesis", 0)
     out = tmp_path / "d.h5"
-    dataset.generate("diverse-tiny", out, progress=False)
+    generate.generate("diverse-tiny", out, progress=False)
     with dataset.Dataset(out) as ds:
         for split in dataset.SPLITS:
             for name in ds.videos(split):

@@ -6,11 +6,15 @@ import os
 import re
 
 import jax
+import jax.numpy as jnp
 import numpy as np
+import optax
 import pytest
 
-from jtus import evaluate, models, recipe, train, upsample
+from jtus import evaluate, loading, losses, recipe, rollout, train, upsample
 from jtus.config import PRESETS
+from jtus.models import dlctus
+from tests import seqdata
 
 
 def _config(tiny_data, **kw):
@@ -38,8 +42,8 @@ def test_killed_run_resumes_to_the_same_parameters(tiny_data, tmp_path):
         assert (tmp_path / "cut" / name).exists()
     assert not [f for f in os.listdir(tmp_path / "cut") if f.endswith(".tmp")]
     # exported parameters load back unchanged, with their config
-    path = recipe.export_params(str(tmp_path / "full"), str(tmp_path / "shipped" / "m-x4"))
-    params, cfg = models.load_params(path, str(tmp_path / "shipped" / "m-x4.json"))
+    path = loading.export_params(str(tmp_path / "full"), str(tmp_path / "shipped" / "m-x4"))
+    params, cfg = loading.load_params(path, str(tmp_path / "shipped" / "m-x4.json"))
     assert cfg == config
     for a, b in zip(_leaves(full), _leaves(params)):
         np.testing.assert_array_equal(a, b)
@@ -137,8 +141,9 @@ def test_a_failed_command_leaves_an_existing_run_alone(tiny_data, tmp_path, caps
 
 
 def test_non_finite_data_stops_training_without_a_checkpoint(tiny_data, tmp_path):
-    import h5py
     import shutil
+
+    import h5py
 
     bad = tmp_path / "nan.h5"
     shutil.copyfile(tiny_data, bad)
@@ -178,9 +183,9 @@ def test_load_params_checks_structure_shapes_and_values(tiny_data, tmp_path):
 
     work = tmp_path / "run"
     train.train_and_evaluate(_config(tiny_data, epochs=1), work, progress=False)
-    good, _ = models.load_params(str(work / "checkpoint.msgpack"))
+    good, _ = loading.load_params(str(work / "checkpoint.msgpack"))
     base = str(tmp_path / "p")
-    recipe.export_params(str(work), base)
+    loading.export_params(str(work), base)
     path, cfg = base + ".msgpack", base + ".json"
 
     def write(obj):
@@ -197,7 +202,7 @@ def test_load_params_checks_structure_shapes_and_values(tiny_data, tmp_path):
                      ({"params": ints}, "dtype int32"), ({"params": nans}, "NaN or Inf")):
         write(obj)
         with pytest.raises(ValueError, match=re.escape(msg)) as e:
-            models.load_params(path)
+            loading.load_params(path)
         assert "p.msgpack" in str(e.value)
     write({"params": good})
     with open(cfg) as fh:
@@ -205,7 +210,7 @@ def test_load_params_checks_structure_shapes_and_values(tiny_data, tmp_path):
     with open(cfg, "w") as fh:
         json.dump({**data, "colour": 1}, fh)
     with pytest.raises(ValueError, match=r"p.json: unknown config keys \['colour'\]"):
-        models.load_params(path)
+        loading.load_params(path)
 
 
 def test_epoch_log_keeps_gradient_norms_and_collapse_reads_it(tiny_data, tmp_path):
@@ -252,12 +257,13 @@ def test_train_comparison_script_passes_valid_configs():
                     common + shlex.split(a) + ["--factor", str(f)]).lr
 
 
-def _load_experiment(name):
-    """An experiment script as a module (experiments/ on sys.path while it loads)."""
+def _load_experiment(name, folder="experiments"):
+    """An experiment script (or a tool) as a module (its folder on sys.path while it
+    loads, as when it runs as a script)."""
     import importlib.util
     import sys
 
-    exp = os.path.join(os.path.dirname(__file__), "..", "experiments")
+    exp = os.path.join(os.path.dirname(__file__), "..", folder)
     sys.path.insert(0, exp)
     try:
         spec = importlib.util.spec_from_file_location(name, os.path.join(exp, f"{name}.py"))
@@ -326,7 +332,7 @@ def test_ablation_studies_build_valid_models():
 def test_ablation_progress_reads_the_committed_runs(tmp_path, monkeypatch):
     """Before a study's table exists, docs/results.md lists its committed runs: epochs
     done of the config's, the last validation PSNR, collapsed (train.collapsed) or not."""
-    ablations = _load_ablations()
+    ablations = _load_experiment("common")  # the ablations' run bookkeeping
     monkeypatch.setattr(ablations, "ROOT", str(tmp_path))
     assert ablations.runs_so_far("warp") == []
     keys = ("epoch", "step", "train_loss", "grad_norm", "grad_norm_max", "param_norm",
@@ -387,7 +393,7 @@ def test_runs_are_saved_and_restored(tmp_path):
 def test_comparison_table_systems_and_targets():
     """experiments/comparison_table.py: every system is listed at both factors with a
     spec that loads (or none, when it has no training on the diverse data), and the
-    targets' margins and verdicts follow the issue's thresholds."""
+    targets' margins and verdicts follow their thresholds."""
     ct = _load_experiment("comparison_table")
     for f in (4, 2):
         rows = ct.systems(f)
@@ -396,7 +402,7 @@ def test_comparison_table_systems_and_targets():
             if spec is None:
                 assert budget is None and "not trained" in status
                 continue
-            entry = models.load(spec, f)
+            entry = loading.load(spec, f)
             assert entry is not None and entry.label == label
             if label not in ("jau", "tus"):
                 assert budget["steps"] > 0 and budget["seconds"] > 0
@@ -466,11 +472,11 @@ def test_training_summary_takes_the_longer_log(tmp_path):
 
 
 def test_mutation_script_counts_mutants_and_sets_the_jit_mode(tmp_path, monkeypatch):
-    """experiments/mutation.py: an equivalent mutant and an unchecked one are not in the
+    """tools/mutation.py: an equivalent mutant and an unchecked one are not in the
     rate, a timeout is not a kill (except a listed mutant that breaks the import); the
     hook it appends to the scratch conftest runs only mutmut's call-recording run op by
     op; results of separate runs merge."""
-    mu = _load_experiment("mutation")
+    mu = _load_experiment("mutation", "tools")
     equivalent = next(iter(mu.EQUIVALENT))
     status = {"m.x_a__mutmut_1": "killed", "m.x_a__mutmut_2": "survived",
               "m.x_a__mutmut_3": "timeout", "m.x_a__mutmut_4": "not checked",
@@ -558,12 +564,12 @@ def test_comparison_table_only_rescores_the_named_systems(tmp_path, monkeypatch)
     root = tmp_path / "root"  # the data is only checked to exist: score is replaced
     (root / "data").mkdir(parents=True)
     (root / "data" / "diverse.h5").write_bytes(b"")
-    fam = ["--families", "random", "--data-root", str(root)]
+    fam = ["--families", "random", "--data-root", str(root), "--thesis", ""]
     ct.main(["--factors", "4", *fam])
     first = written[-1][1]
     labels = [lab for lab, spec, _, _ in ct.systems(4) if spec]
     assert sorted(first["4"]["random"]) == sorted(labels)
-    (tmp_path / "comparison-table").mkdir()
+    (tmp_path / "comparison-table").mkdir(exist_ok=True)  # readme.md is written there
     (tmp_path / "comparison-table" / "result.json").write_text(json.dumps(first))
     monkeypatch.setattr(ct, "score", scorer(30.0))
     monkeypatch.setattr(sys, "argv", ["experiments/comparison_table.py", "--second"])
@@ -596,3 +602,28 @@ def test_ablation_table_sets_each_gap_against_the_thesis():
     lines = ablations.against_thesis("theta", [{"variant": "L1", "psnr": 30.0},
                                                {"variant": "L_st-linear θ=0.25", "psnr": 29.9}])
     assert lines[-1] == "| L_st-linear θ=0.25 | -0.10 | - | - |"  # one seed: no spread
+
+
+def test_real_train_step_hands_on_the_carry_after_k1_frames():
+    """TBPTT in the training step ``train`` runs (``make_train_step`` with
+    ``keep_at``): the carry it returns, which starts the next window, is the state
+    after k1 frames of this window, computed with the parameters before the update.
+    Catches: the step handing on the carry after the whole window (``last`` for
+    ``kept``), which the rollout-level chaining test does not run."""
+    frames, targets = seqdata.to_jax(seqdata.sequence(T=4, B=2))
+    model = dlctus.make(dlctus.Config(factor=4))
+    params = model.init(jax.random.PRNGKey(0))
+    opt = optax.adam(1e-2)
+    step = train.make_train_step(model, losses.make("l1", 4), opt, loss_frames=2, keep_at=2)
+    carry = rollout.start(model.init_state(seqdata.first(frames)), targets[0])
+    ts = train.create_train_state(jax.tree_util.tree_map(jnp.copy, params), opt)
+    _, nxt, _ = step(ts, carry, frames, targets)
+    head = jax.tree_util.tree_map(lambda x: x[:2], frames)
+    state0 = model.init_state(seqdata.first(frames))
+    outs, state2 = rollout.outputs(model.step, params, state0, head)
+    np.testing.assert_allclose(nxt.state.history, state2.history, rtol=0, atol=1e-5)
+    np.testing.assert_allclose(nxt.prev_out, outs[1], rtol=0, atol=1e-5)
+    np.testing.assert_array_equal(nxt.prev_target, targets[1])
+    assert bool(nxt.has_prev)
+    _, state4 = rollout.outputs(model.step, params, model.init_state(seqdata.first(frames)), frames)
+    assert float(jnp.abs(state4.history - state2.history).max()) > 1e-3  # control

@@ -1,6 +1,6 @@
 """DLCTUS's forward as the thesis's own code listing (appendix A.1 of seed ``000``)
 builds it, in PyTorch on the CPU: every design decision here is the listing's, not
-jtus's (``tests/torch_dlctus.py``, the bench's reference, mirrors jtus's structure).
+jtus's (``jtus/reference/torch_dlctus.py``, the bench's reference, mirrors jtus's structure).
 
 The listing's steps, in its order:
 - zero-up-sampling: a grouped ``conv_transpose2d`` with a kernel whose only 1 is at

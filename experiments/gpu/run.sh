@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # One prepared run for a lent NVIDIA GPU machine (at most about 9 minutes; each part
-# has its own time limit and writes its results as it ends): the inference bench at 1080p 2x and 4x in float32 and
-# bfloat16, the training step at the thesis's scale (crop 256, 30 frames, batch 4),
+# has its own time limit and writes its results as it ends): DLCTUS inference at 720p,
+# 1080p and 4K, 2x and 4x, float32 and bfloat16, with the XLA trunk and the fused Pallas
+# trunk (Config.kernels), PyTorch beside it when the machine has a CUDA build of torch
+# (never downloaded); the training step at the thesis's scale (crop 256, 30 frames, batch 4),
 # the parity tests on the GPU, and a short training run at that scale from a CPU run's checkpoint. Results (JSON
 # and logs; seven files at most, what the device tool brings back) go to $OUT
 # (default out/gpu).
@@ -32,15 +34,18 @@ print("jax", jax.__version__, "jaxlib", jaxlib.__version__, "flax", flax.__versi
       "optax", optax.__version__, "devices", jax.devices())
 EOF
 
-# 1. inference at 1080p, float32 and bfloat16, and the training step at paper scale
+# 1. inference, XLA against Pallas, and the training step at paper scale
 if has bench; then
-log "bench: inference"
-timeout 120 $PY -m jtus.bench --what peak infer --sizes 1080p --factors 2 4 \
-  --dtypes float32 bfloat16 --no-torch --repeats 30 --out "$OUT/bench-infer.json" \
-  2>&1 | grep -v "it/s\]" | tail -n 25 >> "$OUT/run.log"
+TORCH=--no-torch
+$PY -c "import torch, sys; sys.exit(not torch.cuda.is_available())" 2>/dev/null && TORCH=--torch
+log "bench: inference ($TORCH)"
+timeout 180 $PY -m jtus.bench --what peak infer --models dlctus --sizes 720p 1080p 4k \
+  --factors 2 4 --dtypes float32 bfloat16 --kernels xla pallas $TORCH --repeats 30 \
+  --out "$OUT/bench-infer.json" 2>&1 | grep -v "it/s\]" | tail -n 30 >> "$OUT/run.log"
 log "bench: training step, crop 256, 30 frames, batch 4"
 for cb in autodiff custom; do
-  timeout 90 $PY -m jtus.bench --what train --factors 4 --train-crop 256 --train-batch 4 \
+  timeout 90 $PY -m jtus.bench --what train --train-models dlctus --factors 4 \
+    --train-crop 256 --train-batch 4 \
     --train-seq 30 --train-loss-frames 5 --train-conv-backward $cb --no-torch --repeats 10 \
     --out "$OUT/bench-train-$cb.json" 2>&1 | grep -v "it/s\]" | tail -n 8 >> "$OUT/run.log"
 done
@@ -64,15 +69,15 @@ fi
 if has train && [ -n "$CKPT" ]; then
   log "rendering a small randomized dataset at 256x256"
   timeout 120 $PY - <<'EOF' 2>&1 | tail -n 2 | tee -a "$OUT/run.log"
-from jtus.data import dataset
+from jtus.sim import generate
 from jtus.sampling.jitter import VARIETY
 from jtus.sim import randomized
 # training seeds past the diverse preset's 200: never a validation or test scene
 names = lambda split, n, start=0: tuple(randomized.name_of(s) for s in randomized.split_seeds(split, n, start))
-p = dataset.Preset((256, 256), (4,), 16, 1, {"train": (names("train", 12, 5000), 1, 32),
+p = generate.Preset((256, 256), (4,), 16, 1, {"train": (names("train", 12, 5000), 1, 32),
                                              "val": (names("val", 2), 1, 32), "test": ((), 1, 1)},
                    VARIETY)
-dataset.generate(p, "/tmp/gpu-diverse.h5", progress=False)
+generate.generate(p, "/tmp/gpu-diverse.h5", progress=False)
 print("rendered", p.total_frames(), "frames")
 EOF
   [ -f /tmp/gpu-diverse.h5 ] || { log "no dataset rendered: no training"; exit 0; }

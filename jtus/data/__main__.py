@@ -13,10 +13,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import re
 import sys
 
-from jtus.data import dataset, exr
+from jtus import cli
+from jtus.data import dataset, exr, nss
 from jtus.files import check_out_file
+from jtus.sim import generate
 
 
 def _parser():
@@ -24,7 +27,7 @@ def _parser():
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
     g = sub.add_parser("generate", help="render a preset into an HDF5 file (atomically)")
-    g.add_argument("--preset", choices=dataset.PRESET_NAMES, default="default")
+    g.add_argument("--preset", choices=generate.PRESET_NAMES, default="default")
     g.add_argument("--out", required=True)
     g.add_argument("--quiet", action="store_true")
     i = sub.add_parser("import-exr", help="an EXR sequence into the HDF5 layout")
@@ -68,8 +71,6 @@ def _parser():
 
 
 def _import(args):
-    import re
-
     if not re.fullmatch(r"[A-Za-z0-9_.-]+", args.name):
         raise ValueError(f"--name: expected letters, digits, '_', '-' or '.', got "
                          f"{args.name!r}")
@@ -86,8 +87,6 @@ def _import(args):
 
 
 def _export(args):
-    import re
-
     exr.check_sequence_folder(args.out, args.force)
     m = re.fullmatch(r"target|color@(\d+)", args.what)
     if not m:
@@ -119,17 +118,15 @@ def _info(args):
 
 def main(argv=None):
     args = _parser().parse_args(argv)
-    from jtus.cli import sigterm_as_exit
-    sigterm_as_exit()
+    cli.sigterm_as_exit()
     try:
         if args.cmd == "generate":
             check_out_file(args.out, kind="an .h5 file")
-            dataset.generate(args.preset, args.out, progress=not args.quiet)
+            generate.generate(args.preset, args.out, progress=not args.quiet)
             print(f"wrote {args.out}")
         elif args.cmd == "import-exr":
             _import(args)
         elif args.cmd == "import-nss":
-            from jtus.data import nss
 
             check_out_file(args.out, args.force, kind="an .h5 file")
             names = args.sequences.split(",") if args.sequences else None
@@ -147,5 +144,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    from jtus import cli  # not ``from jtus.cli import run``: a module may have its own run
     cli.run(main)

@@ -14,13 +14,13 @@ Layout (``docs/data.md``)::
             motion [T,h,w,2] float32, backward, LR pixels
             jitter [T,2]     float32, in [0,1)^2
 
-Files are written to a temporary name beside the destination and renamed when
-complete, so an interrupted ``generate`` leaves nothing behind.
+The writers here (``write_root_attrs``, ``write_video``) are what every producer of a
+dataset calls: the simulator (``jtus.sim.generate``) and the importers (``exr``,
+``nss``), each into a file opened under ``jtus.files.atomic_path``.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import os
@@ -28,7 +28,6 @@ import os
 import h5py
 import numpy as np
 
-from jtus.files import atomic_path, read_json_fields  # noqa: F401 (re-exported)
 from jtus.frame import Frame
 
 FORMAT = "jtus-dataset"
@@ -40,84 +39,6 @@ CONVENTIONS = {
     "jitter": "offset inside the LR pixel in [0,1)^2", "depth": "D3D device depth, not reversed",
     "color": "linear RGB", "doc": "docs/conventions.md",
 }
-
-
-@dataclasses.dataclass(frozen=True)
-class Preset:
-    """What ``generate`` renders: per split, (scene names, videos per scene, frames).
-
-    ``effects``: effects added to every scene (``("hdr", ...)`` for HDR data).
-    ``jitters``: the jitter sequences a video draws from (``jtus.sampling.jitter``);
-    each video's choice and its starting phase come from its own seed and are stored
-    (``jitter`` per frame, the sequence's name in the video's attrs)."""
-    size: tuple
-    factors: tuple
-    spp: int
-    spp_match: int
-    splits: dict
-    jitters: tuple = ("thesis",)
-    effects: tuple = ()   # added to every scene's own (``jtus.sim.with_effects``)
-
-    def total_frames(self):
-        return sum(len(s) * n * t for s, n, t in self.splits.values())
-
-
-def _random(split, count):
-    from jtus.sim import randomized
-    return tuple(randomized.name_of(s) for s in randomized.split_seeds(split, count))
-
-
-def _presets():
-    from jtus.sampling.jitter import VARIETY
-    from jtus.sim import SCENES
-    all_ = tuple(SCENES)
-    return {
-        "tiny": Preset((32, 32), (2, 4), 4, 1, {
-            "train": (("camera_orbit", "objects"), 1, 8), "val": (("camera_orbit",), 1, 8),
-            "test": (("objects",), 1, 8)}),
-        "default": Preset((256, 256), (2, 4), 16, 1, {
-            "train": (all_, 2, 24),
-            "val": (("camera_orbit", "objects", "fence_pan", "everything"), 1, 24),
-            "test": (all_, 1, 30)}),
-        # 40-frame videos at 128x128 for sequence-length studies (BPTT over up to 40
-        # frames; the default data's training videos have 24)
-        "long": Preset((128, 128), (2, 4), 16, 1, {
-            "train": (all_, 1, 40), "val": (("camera_orbit", "everything"), 1, 40),
-            "test": (all_, 1, 40)}),
-        "paper": Preset((1080, 1920), (2, 4), 64, 1, {
-            "train": (all_, 6, 60), "val": (all_[:10], 1, 60), "test": (all_[:10], 1, 60)}),
-        # generalization: 200 randomized scenes for training, unseen seeds for validation
-        # and test, the 13 hand-made scenes as a second test family; every jitter
-        # sequence (docs/data.md)
-        # (192x192: 256x256 rendered at about half the speed, docs/data.md)
-        "diverse": Preset((192, 192), (2, 4), 16, 1, {
-            "train": (_random("train", 200), 1, 16), "val": (_random("val", 8), 1, 16),
-            "test": (_random("test", 16) + all_, 1, 24)}, VARIETY),
-        # the same family in seconds, for tests
-        "diverse-tiny": Preset((32, 32), (2, 4), 4, 1, {
-            "train": (_random("train", 3), 1, 8), "val": (_random("val", 1), 1, 8),
-            "test": (_random("test", 1) + ("objects",), 1, 8)}, VARIETY),
-        # HDR: the diverse family with highlights above 1 and an exposure per frame
-        "hdr": Preset((192, 192), (2, 4), 16, 1, {
-            "train": (_random("train", 200), 1, 16), "val": (_random("val", 8), 1, 16),
-            "test": (_random("test", 16) + all_, 1, 24)}, VARIETY, _HDR),
-        "hdr-tiny": Preset((32, 32), (2, 4), 4, 1, {
-            "train": (_random("train", 3), 1, 8), "val": (_random("val", 1), 1, 8),
-            "test": (_random("test", 1) + ("objects",), 1, 8)}, VARIETY, _HDR),
-    }
-
-
-_HDR = ("hdr", "specular", "emissive_flicker")
-
-
-PRESET_NAMES = ("tiny", "default", "long", "paper", "diverse", "diverse-tiny", "hdr", "hdr-tiny")
-
-
-def preset(name) -> Preset:
-    p = _presets()
-    if name not in p:
-        raise ValueError(f"preset: expected one of {PRESET_NAMES}, got {name!r}")
-    return p[name]
 
 
 def mip_bias(factor, spp_match):
@@ -151,58 +72,6 @@ def write_root_attrs(fh, size, factors, spp, spp_match):
     fh.attrs.update({"format": FORMAT, "version": VERSION, "spp": spp, "spp_match": spp_match,
                      "mip_bias": 0.0 - 0.5 * math.log2(spp_match), "factors": list(factors),
                      "size": list(size), "conventions": json.dumps(CONVENTIONS)})
-
-
-def video_jitter(choices, scene_name, split, index):
-    """``(sequence name, phase)`` of one video: the only choice when there is one
-    (phase 0, the thesis's setup), else drawn from the video's own seed."""
-    from jtus.sim.paths import video_seed
-
-    if len(choices) == 1:
-        return choices[0], 0
-    rng = np.random.default_rng([video_seed(scene_name, split, index), 0x717])
-    return str(choices[int(rng.integers(len(choices)))]), int(rng.integers(0, 64))
-
-
-def generate(name_or_preset, out, progress=True, scenes=None, custom=None):
-    """Render a preset into ``out`` (HDF5), atomically, with a progress bar.
-
-    ``scenes``: render only these names of the preset; ``custom``: ``{name: Scene}``
-    for names that are not built-in (scenes declared in JSON)."""
-    from tqdm import tqdm
-
-    from jtus.sim import get_scene, with_effects
-    from jtus.sim.video import VideoRenderer
-
-    p = preset(name_or_preset) if isinstance(name_or_preset, str) else name_or_preset
-    bar = tqdm(total=p.total_frames(), unit="frame", desc=f"generate {out}", disable=not progress)
-    renderers = {}
-    with atomic_path(out) as tmp, h5py.File(tmp, "w") as fh:
-        write_root_attrs(fh, p.size, p.factors, p.spp, p.spp_match)
-        for split in SPLITS:
-            names, per_scene, length = p.splits[split]
-            for name in names:
-                if scenes is not None and name not in scenes:
-                    continue
-                if name not in renderers:
-                    scene = custom[name] if custom and name in custom else get_scene(name)
-                    scene = with_effects(scene, p.effects)
-                    renderers[name] = VideoRenderer(scene, p.size, p.factors, p.spp,
-                                                    p.spp_match)
-                r = renderers[name]
-                for i in range(per_scene):
-                    jit, phase = video_jitter(p.jitters, name, split, i)
-                    video = r.video(split, i, length, progress=bar.update, jitter=jit,
-                                    jitter_phase=phase)
-                    g = fh.create_group(f"{split}/{name}_{i:02d}")
-                    g.attrs.update({"scene": name, "effects": json.dumps(list(r.scene.effects)),
-                                    "length": length, "index": i, "jitter_sequence": jit,
-                                    "jitter_phase": phase, "near": r.scene.near,
-                                    "far": r.scene.far})
-                    write_video(g, video, p.factors, p.spp_match)
-        fh.flush()
-    bar.close()
-    return out
 
 
 class Dataset:
@@ -336,49 +205,3 @@ class Dataset:
         frame = Frame(st["color"], st["depth"], st["motion"], st["jitter"], st["reset"],
                       exposure)
         return (frame, st["target"], index) if return_index else (frame, st["target"])
-
-
-class StreamingSource:
-    """Renders training crops on the fly, through ``Dataset.crops``'s interface, for
-    machines where rendering is cheaper than disk."""
-
-    def __init__(self, scenes, size=(256, 256), factors=(2, 4), spp=16, spp_match=1,
-                 split="train", videos_per_scene=1000):
-        from jtus.sim import get_scene
-        from jtus.sim.video import VideoRenderer
-
-        self.renderers = [VideoRenderer(get_scene(s), size, factors, spp, spp_match)
-                          for s in scenes]
-        self.size, self.factors, self.split = tuple(size), tuple(factors), split
-        self.videos_per_scene = videos_per_scene
-
-    def crops(self, split, factor, batch, seq_len, crop, rng):
-        from jtus.sampling import jitter_sequence
-        from jtus.sim import paths
-
-        H, W = self.size
-        c = crop // factor
-        seq = jitter_sequence("thesis", factor)
-        cols = {k: [] for k in ("color", "depth", "motion", "jitter", "reset", "target")}
-        for _ in range(batch):
-            r = self.renderers[rng.integers(len(self.renderers))]
-            states = paths.timeline(r.scene, split, int(rng.integers(self.videos_per_scene)),
-                                    seq_len, W / H)
-            y = int(rng.integers(0, (H - crop) // factor + 1))
-            xx = int(rng.integers(0, (W - crop) // factor + 1))
-            per = {k: [] for k in cols}
-            for t, st in enumerate(states):
-                jit = seq[t % len(seq)].astype(np.float32)
-                col, dep, mv = r.input(st, factor, jit)
-                per["color"].append(col[y:y + c, xx:xx + c])
-                per["depth"].append(dep[y:y + c, xx:xx + c])
-                per["motion"].append(mv[y:y + c, xx:xx + c])
-                per["jitter"].append(jit)
-                per["reset"].append(t == 0 or st.cut)
-                per["target"].append(r.target(st)[y * factor:y * factor + crop,
-                                                  xx * factor:xx * factor + crop])
-            for k in cols:
-                cols[k].append(np.stack(per[k]))
-        st = {k: np.stack(v, 1) for k, v in cols.items()}
-        return (Frame(st["color"].astype(np.float32), st["depth"], st["motion"], st["jitter"],
-                      st["reset"].astype(bool)), st["target"].astype(np.float32))

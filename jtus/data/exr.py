@@ -14,18 +14,23 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 
+import h5py
 import numpy as np
+import OpenEXR
+from PIL import Image
 
-from jtus.data import conventions
+from jtus.data import conventions, dataset
 from jtus.data.conventions import FAR, NEAR
+from jtus.files import atomic_path, check_out_folder, read_json_fields
+from jtus.sampling import jitter_sequence
 
 IMAGE_FORMATS = ("exr", "png")
 
 
 def write_exr(path, channels, half=False):
     """Write ``{name: [H,W] array}`` as one EXR part (ZIP compression)."""
-    import OpenEXR
 
     arrays = {}
     shape = None
@@ -44,7 +49,6 @@ def write_exr(path, channels, half=False):
 
 def read_exr(path):
     """``({name: float32 [H,W]}, header dict)``; clear errors for missing or corrupt files."""
-    import OpenEXR
 
     path = os.fspath(path)
     if not os.path.exists(path):
@@ -127,8 +131,6 @@ class ImportSpec:
 
     @classmethod
     def from_json(cls, path):
-        from jtus.files import read_json_fields
-
         data = read_json_fields(path, cls, "keys")
         data = {k: tuple(v) if isinstance(v, list) and k in ("color", "motion", "target_color")
                 else v for k, v in data.items()}
@@ -141,7 +143,6 @@ class ImportSpec:
 def _frames(folder):
     """``{frame number: path}`` of a folder's EXRs, the number being the last group of
     digits in each name (``frame10.exr`` is frame 10, after ``frame2.exr``)."""
-    import re
 
     if not os.path.isdir(folder):
         raise FileNotFoundError(f"{folder}: no such folder")
@@ -177,8 +178,6 @@ def check_values(path, field, v, lo=None, hi=None):
 
 
 def _jitters(spec, n, factor):
-    from jtus.sampling import jitter_sequence
-
     if isinstance(spec.jitter, str):
         if spec.jitter != "thesis":
             raise ValueError(f"jitter: expected 'thesis' or numbers, got {spec.jitter!r}")
@@ -192,96 +191,123 @@ def _jitters(spec, n, factor):
     return conventions.jitter_to_jtus(j, spec.jitter_kind, spec.jitter_y_up)
 
 
-def load_sequence(input_dir, target_dir, factor, spec: ImportSpec = ImportSpec()):
-    """Read an EXR sequence into the ``jtus.sim.video`` dict layout (one factor).
-    ``target_dir`` None reads the inputs alone (``target`` is then absent)."""
+def _paired(input_dir, target_dir):
+    """``(input files, target files or Nones)`` in frame-number order; ``ValueError``
+    naming the frames that do not pair."""
     by_number = _frames(input_dir)
     numbers = sorted(by_number)
     inputs = [by_number[n] for n in numbers]
-    if target_dir is not None:
-        tby = _frames(target_dir)
-        if sorted(tby) != numbers:
-            only_in = sorted(set(numbers) - set(tby))[:10]
-            only_tg = sorted(set(tby) - set(numbers))[:10]
-            raise ValueError(f"frames do not pair: {input_dir} has frames {numbers[0]}-"
-                             f"{numbers[-1]}, {target_dir} has {min(tby)}-{max(tby)}"
-                             + (f"; no target for {only_in}" if only_in else "")
-                             + (f"; no input for {only_tg}" if only_tg else ""))
-        targets = [tby[n] for n in numbers]
-    else:
-        targets = [None] * len(inputs)
-    cols = {"color": [], "depth": [], "motion": [], "target": [], "exposure": []}
-    shape = None
-    for fin, ftg in zip(inputs, targets):
-        ch, _ = read_exr(fin)
-        color = _pick(ch, spec.color, fin, "color")
-        h, w = color.shape[:2]
-        if shape is None:
-            shape = (h, w)
-        elif (h, w) != shape:
-            raise ValueError(f"{fin}: size {h}x{w} differs from the first frame's "
-                             f"{shape[0]}x{shape[1]}")
-        check_values(fin, "color", color)
-        depth = _pick(ch, (spec.depth,), fin, "depth")
-        check_values(fin, f"depth ({spec.depth_kind})", depth, lo=0.0,
-                      hi=1.0 if spec.depth_kind in ("device", "reversed", "linear") else None)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            depth = conventions.depth_to_device(depth, spec.depth_kind, spec.near, spec.far)
-        check_values(fin, f"depth (as device depth, from {spec.depth_kind} with near "
-                      f"{spec.near}, far {spec.far})", depth, lo=0.0, hi=1.0)
-        motion = conventions.motion_to_jtus(_pick(ch, spec.motion, fin, "motion"), w, h,
-                                            spec.motion_units, spec.motion_y_up,
-                                            spec.motion_negate)
-        check_values(fin, "motion", motion)
-        if spec.exposure_channel:
-            cols["exposure"].append(float(_pick(ch, (spec.exposure_channel,), fin,
-                                                "exposure").mean()))
-        for k, v in (("color", color), ("depth", depth), ("motion", motion)):
-            cols[k].append(v.astype(np.float32))
-        if ftg is not None:
-            tch, _ = read_exr(ftg)
-            target = _pick(tch, spec.target_color, ftg, "target")
-            check_values(ftg, "target", target)
-            if target.shape[:2] != (h * factor, w * factor):
-                raise ValueError(f"{ftg}: target size {target.shape[0]}x{target.shape[1]} is "
-                                 f"not factor {factor} x the input's {h}x{w}")
-            cols["target"].append(target.astype(np.float32))
-    n = len(inputs)
+    if target_dir is None:
+        return inputs, [None] * len(inputs)
+    tby = _frames(target_dir)
+    if sorted(tby) != numbers:
+        only_in = sorted(set(numbers) - set(tby))[:10]
+        only_tg = sorted(set(tby) - set(numbers))[:10]
+        raise ValueError(f"frames do not pair: {input_dir} has frames {numbers[0]}-"
+                         f"{numbers[-1]}, {target_dir} has {min(tby)}-{max(tby)}"
+                         + (f"; no target for {only_in}" if only_in else "")
+                         + (f"; no input for {only_tg}" if only_tg else ""))
+    return inputs, [tby[n] for n in numbers]
+
+
+def _read_input(fin, spec: ImportSpec):
+    """One input frame: ``(colour, device depth, motion in jtus's convention, exposure
+    or None)``, each channel checked and converted at this edge."""
+    ch, _ = read_exr(fin)
+    color = _pick(ch, spec.color, fin, "color")
+    h, w = color.shape[:2]
+    check_values(fin, "color", color)
+    depth = _pick(ch, (spec.depth,), fin, "depth")
+    check_values(fin, f"depth ({spec.depth_kind})", depth, lo=0.0,
+                 hi=1.0 if spec.depth_kind in ("device", "reversed", "linear") else None)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        depth = conventions.depth_to_device(depth, spec.depth_kind, spec.near, spec.far)
+    check_values(fin, f"depth (as device depth, from {spec.depth_kind} with near "
+                 f"{spec.near}, far {spec.far})", depth, lo=0.0, hi=1.0)
+    motion = conventions.motion_to_jtus(_pick(ch, spec.motion, fin, "motion"), w, h,
+                                        spec.motion_units, spec.motion_y_up,
+                                        spec.motion_negate)
+    check_values(fin, "motion", motion)
+    exposure = (float(_pick(ch, (spec.exposure_channel,), fin, "exposure").mean())
+                if spec.exposure_channel else None)
+    return color, depth, motion, exposure
+
+
+def _read_target(ftg, spec: ImportSpec, lr_size, factor):
+    tch, _ = read_exr(ftg)
+    target = _pick(tch, spec.target_color, ftg, "target")
+    check_values(ftg, "target", target)
+    h, w = lr_size
+    if target.shape[:2] != (h * factor, w * factor):
+        raise ValueError(f"{ftg}: target size {target.shape[0]}x{target.shape[1]} is "
+                         f"not factor {factor} x the input's {h}x{w}")
+    return target.astype(np.float32)
+
+
+def _checked_jitter(spec: ImportSpec, n, factor):
     jitter = _jitters(spec, n, factor)
     if not (np.all(np.isfinite(jitter)) and np.all((jitter >= 0) & (jitter < 1))):
         raise ValueError(f"jitter: expected values in [0, 1) after the {spec.jitter_kind!r} "
                          f"convention, got min {np.nanmin(jitter):.4g}, max "
                          f"{np.nanmax(jitter):.4g} ({int((~np.isfinite(jitter)).sum())} NaN "
                          f"or Inf)")
+    return jitter.astype(np.float32)
+
+
+def _checked_exposure(exposure, n):
+    """``[n]`` float32 exposures from one number or one per frame; None stays None."""
+    if exposure is None:
+        return None
+    e = np.broadcast_to(np.asarray(exposure, np.float64), (n,)) if np.ndim(exposure) == 0 \
+        else np.asarray(exposure, np.float64)
+    if e.shape != (n,):
+        raise ValueError(f"exposure: expected one number or {n} (one per frame), got "
+                         f"{e.shape[0]}")
+    if not np.all(np.isfinite(e) & (e > 0)):
+        raise ValueError(f"exposure: expected finite values > 0, got min {np.nanmin(e):.4g}")
+    return e.astype(np.float32)
+
+
+def load_sequence(input_dir, target_dir, factor, spec: ImportSpec = ImportSpec()):
+    """Read an EXR sequence into the ``jtus.sim.video`` dict layout (one factor).
+    ``target_dir`` None reads the inputs alone (``target`` is then absent)."""
+    inputs, targets = _paired(input_dir, target_dir)
+    cols = {"color": [], "depth": [], "motion": [], "target": [], "exposure": []}
+    shape = None
+    for fin, ftg in zip(inputs, targets):
+        color, depth, motion, exposure = _read_input(fin, spec)
+        h, w = color.shape[:2]
+        if shape is None:
+            shape = (h, w)
+        elif (h, w) != shape:
+            raise ValueError(f"{fin}: size {h}x{w} differs from the first frame's "
+                             f"{shape[0]}x{shape[1]}")
+        for k, v in (("color", color), ("depth", depth), ("motion", motion)):
+            cols[k].append(v.astype(np.float32))
+        cols["exposure"].append(exposure)
+        if ftg is not None:
+            cols["target"].append(_read_target(ftg, spec, shape, factor))
+    n = len(inputs)
     out = {"reset": np.arange(n) == 0,
            f"x{factor}": {"color": np.stack(cols["color"]), "depth": np.stack(cols["depth"]),
                           "motion": np.stack(cols["motion"]),
-                          "jitter": jitter.astype(np.float32)}}
+                          "jitter": _checked_jitter(spec, n, factor)}}
     if cols["target"]:
         out["target"] = np.stack(cols["target"])
-    exposure = cols["exposure"] if spec.exposure_channel else spec.exposure
+    exposure = _checked_exposure(cols["exposure"] if spec.exposure_channel else spec.exposure,
+                                 n)
     if exposure is not None:
-        e = np.broadcast_to(np.asarray(exposure, np.float64), (n,)) if np.ndim(exposure) == 0 \
-            else np.asarray(exposure, np.float64)
-        if e.shape != (n,):
-            raise ValueError(f"exposure: expected one number or {n} (one per frame), got "
-                             f"{e.shape[0]}")
-        if not np.all(np.isfinite(e) & (e > 0)):
-            raise ValueError(f"exposure: expected finite values > 0, got min {np.nanmin(e):.4g}")
-        out["exposure"] = e.astype(np.float32)
+        out["exposure"] = exposure
     return out
 
 
 def import_exr(input_dir, target_dir, factor, out, spec: ImportSpec = ImportSpec(),
                split="test", name="video_00"):
     """Write an EXR sequence as a one-video jtus HDF5 dataset (atomically)."""
-    import h5py
-
-    from jtus.data import dataset
 
     video = load_sequence(input_dir, target_dir, factor, spec)
     T, H, W, _ = video["target"].shape
-    with dataset.atomic_path(out) as tmp, h5py.File(tmp, "w") as fh:
+    with atomic_path(out) as tmp, h5py.File(tmp, "w") as fh:
         dataset.write_root_attrs(fh, (H, W), (factor,), spp=0, spp_match=1)
         g = fh.create_group(f"{split}/{name}")
         g.attrs.update({"scene": f"exr:{os.path.abspath(input_dir)}", "effects": "[]",
@@ -298,7 +324,6 @@ def linear_to_srgb(x):
 
 def sequence_files(folder, prefix="frame"):
     """The frames a ``write_sequence`` into ``folder`` wrote (any format)."""
-    import re
 
     if not os.path.isdir(folder):
         return []
@@ -309,7 +334,6 @@ def sequence_files(folder, prefix="frame"):
 def check_sequence_folder(folder, force=False, prefix="frame", field="--out"):
     """Refuse, before any work, a folder holding the frames of an earlier sequence
     (new frames beside stale ones would read as one sequence) unless ``force``."""
-    from jtus.files import check_out_folder
 
     check_out_folder(folder, field)
     old = sequence_files(folder, prefix)
@@ -323,9 +347,6 @@ def write_sequence(frames, folder, fmt="exr", prefix="frame", srgb=True):
     removing the frames of an earlier sequence there (``check_sequence_folder`` refuses
     them first unless forced). PNGs are 8-bit, sRGB-encoded unless ``srgb=False``.
     Returns the paths."""
-    from PIL import Image
-
-    from jtus.files import atomic_path
 
     if fmt not in IMAGE_FORMATS:
         raise ValueError(f"fmt: expected one of {IMAGE_FORMATS}, got {fmt!r}")

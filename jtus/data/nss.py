@@ -21,10 +21,13 @@ from __future__ import annotations
 import json
 import os
 
+import h5py
 import numpy as np
+from tqdm import tqdm
 
-from jtus.data import conventions
+from jtus.data import conventions, dataset
 from jtus.data.exr import check_values, read_exr
+from jtus.files import atomic_path
 
 INFINITE_FAR = 1e5   # metres; what an infinite far plane (CameraFarPlane -1) becomes
 
@@ -60,9 +63,9 @@ def _channels(path, options, what):
                      f"file has {sorted(ch)}")
 
 
-def load_sequence(root, name, factor):
-    """One NSS sequence as a ``jtus.sim.video`` dict at ``factor`` (plus ``near``,
-    ``far``), every value checked and converted before anything is written."""
+def _read_meta(root, name, factor):
+    """``(where, meta, frames, reverse_z, (H, W), jitter index, LR folder)`` of one
+    sequence's JSON, checked."""
     where = os.path.join(root, f"{name}.json")
     try:
         with open(where) as fh:
@@ -79,65 +82,84 @@ def load_sequence(root, name, factor):
     if W % factor or H % factor:
         raise ValueError(f"{where}: TargetResolution {W}x{H} is not a multiple of "
                          f"factor {factor}")
-    w, h = W // factor, H // factor
     index = meta.get("UpscalingRatiosIndices", {}).get(f"x{factor}_index")
     lr = os.path.join(root, f"x{factor}")
     if not os.path.isdir(lr):
         raise ValueError(f"--factor: {root} has no x{factor}/ folder (ratios: "
                          f"{sorted(d for d in os.listdir(root) if d.startswith('x'))})")
+    return where, frames, reverse_z, (H, W), index, lr
+
+
+def _frame_camera(fr, fw, index, lr_size, factor):
+    """``(near, far, jitter in LR pixels, FSR 2's convention)`` of one frame's entry."""
+    near = float(_need(fr, "CameraNearPlane", fw))
+    far = float(_need(fr, "CameraFarPlane", fw))
+    far = INFINITE_FAR if far == -1.0 else far
+    if not 0 < near < far:
+        raise ValueError(f"{fw}: expected 0 < CameraNearPlane < CameraFarPlane, got "
+                         f"{near}, {far}")
+    h, w = lr_size
+    if index is not None:
+        nj = _need(fr, "NormalizedPerRatioJitter", fw, list)
+        if not 0 <= index < len(nj):
+            raise ValueError(f"{fw}.NormalizedPerRatioJitter: no entry {index} "
+                             f"(x{factor}_index)")
+        e = nj[index]
+        j = (np.array([e["X"], e["Y"]], float) if isinstance(e, dict)
+             else np.asarray(e, float)) * [w, h]
+    else:
+        e = _need(fr, "Jitter", fw, dict)
+        j = np.array([_need(e, "X", f"{fw}.Jitter"), _need(e, "Y", f"{fw}.Jitter")], float)
+    return near, far, j
+
+
+def _frame_images(files, fw, factor, lr_size, hr_size, reverse_z, near, far):
+    """``(colour, device depth, motion in jtus's convention, target)`` of one frame,
+    each image's size and values checked."""
+    for k, path in files.items():
+        if not os.path.exists(path):
+            raise ValueError(f"{fw}: {k} image {path} is missing")
+    color = _channels(files["color"], [("R", "G", "B")], "color")
+    target = _channels(files["target"], [("R", "G", "B")], "ground truth")
+    depth = _channels(files["depth"], [("R",), ("Y",), ("Z",), ("D",)], "depth")
+    motion = _channels(files["motion"], [("R", "G"), ("X", "Y"), ("U", "V")], "motion")
+    for k, v, shape in (("color", color, lr_size), ("depth", depth, lr_size),
+                        ("motion", motion, lr_size), ("target", target, hr_size)):
+        if v.shape[:2] != shape:
+            raise ValueError(f"{files[k]}: size {v.shape[0]}x{v.shape[1]}, expected "
+                             f"{shape[0]}x{shape[1]} (TargetResolution / {factor})")
+    check_values(files["color"], "color", color, lo=0.0)
+    check_values(files["target"], "ground truth", target, lo=0.0)
+    check_values(files["depth"], "depth", depth, lo=0.0)
+    check_values(files["motion"], "motion", motion)
+    depth = conventions.depth_to_device(depth, "reversed" if reverse_z else "device",
+                                        near, far)
+    if depth.max() > 1.0:
+        raise ValueError(f"{files['depth']}: device depth above 1 (max {depth.max():.4g})")
+    h, w = lr_size
+    return color, depth, conventions.motion_to_jtus(motion, w, h, "uv"), target
+
+
+def load_sequence(root, name, factor):
+    """One NSS sequence as a ``jtus.sim.video`` dict at ``factor`` (plus ``near``,
+    ``far``), every value checked and converted before anything is written."""
+    where, frames, reverse_z, (H, W), index, lr = _read_meta(root, name, factor)
+    h, w = H // factor, W // factor
     cols = {k: [] for k in ("color", "depth", "motion", "target")}
     jit, exposure, reset, planes = [], [], [], []
     for t, fr in enumerate(frames):
         fw = f"{where}: Frames[{t}]"
-        num = int(_need(fr, "Frame", fw))
-        stem = f"{num:04d}.exr"
-        near = float(_need(fr, "CameraNearPlane", fw))
-        far = float(_need(fr, "CameraFarPlane", fw))
-        far = INFINITE_FAR if far == -1.0 else far
-        if not 0 < near < far:
-            raise ValueError(f"{fw}: expected 0 < CameraNearPlane < CameraFarPlane, got "
-                             f"{near}, {far}")
+        stem = f"{int(_need(fr, 'Frame', fw)):04d}.exr"
+        near, far, j = _frame_camera(fr, fw, index, (h, w), factor)
         planes.append((near, far))
-        if index is not None:
-            nj = _need(fr, "NormalizedPerRatioJitter", fw, list)
-            if not 0 <= index < len(nj):
-                raise ValueError(f"{fw}.NormalizedPerRatioJitter: no entry {index} "
-                                 f"(x{factor}_index)")
-            e = nj[index]
-            j = (np.array([e["X"], e["Y"]], float) if isinstance(e, dict)
-                 else np.asarray(e, float)) * [w, h]
-        else:
-            e = _need(fr, "Jitter", fw, dict)
-            j = np.array([_need(e, "X", f"{fw}.Jitter"), _need(e, "Y", f"{fw}.Jitter")], float)
         jit.append(j)
         exposure.append(fr.get("Exposure"))
         reset.append(t == 0 or bool(fr.get("CameraCut", False)))
         files = {k: os.path.join(lr, k, name, stem) for k in ("color", "depth", "motion")}
         files["target"] = os.path.join(root, "ground_truth", name, stem)
-        for k, path in files.items():
-            if not os.path.exists(path):
-                raise ValueError(f"{fw}: {k} image {path} is missing")
-        color = _channels(files["color"], [("R", "G", "B")], "color")
-        target = _channels(files["target"], [("R", "G", "B")], "ground truth")
-        depth = _channels(files["depth"], [("R",), ("Y",), ("Z",), ("D",)], "depth")
-        motion = _channels(files["motion"], [("R", "G"), ("X", "Y"), ("U", "V")], "motion")
-        for k, v, shape in (("color", color, (h, w)), ("depth", depth, (h, w)),
-                            ("motion", motion, (h, w)), ("target", target, (H, W))):
-            if v.shape[:2] != shape:
-                raise ValueError(f"{files[k]}: size {v.shape[0]}x{v.shape[1]}, expected "
-                                 f"{shape[0]}x{shape[1]} (TargetResolution / {factor})")
-        check_values(files["color"], "color", color, lo=0.0)
-        check_values(files["target"], "ground truth", target, lo=0.0)
-        check_values(files["depth"], "depth", depth, lo=0.0)
-        check_values(files["motion"], "motion", motion)
-        depth = conventions.depth_to_device(depth, "reversed" if reverse_z else "device",
-                                            near, far)
-        if depth.max() > 1.0:
-            raise ValueError(f"{files['depth']}: device depth above 1 (max {depth.max():.4g})")
-        cols["color"].append(color)
-        cols["depth"].append(depth)
-        cols["motion"].append(conventions.motion_to_jtus(motion, w, h, "uv"))
-        cols["target"].append(target)
+        for k, v in zip(("color", "depth", "motion", "target"), _frame_images(
+                files, fw, factor, (h, w), (H, W), reverse_z, near, far)):
+            cols[k].append(v)
     given = [e is not None for e in exposure]
     if any(given) and not all(given):
         raise ValueError(f"{where}: Exposure on {sum(given)} of {len(given)} frames; give it on "
@@ -148,11 +170,10 @@ def load_sequence(root, name, factor):
                          f"offsets in [-0.5, 0.5) expected; min {np.nanmin(jitter):.4g}, "
                          f"max {np.nanmax(jitter):.4g})")
     out = {"reset": np.array(reset), "target": np.stack(cols["target"]).astype(np.float32),
-           f"x{factor}": {"color": np.stack(cols["color"]).astype(np.float32),
-                          "depth": np.stack(cols["depth"]).astype(np.float32),
-                          "motion": np.stack(cols["motion"]).astype(np.float32),
-                          "jitter": jitter.astype(np.float32)},
+           f"x{factor}": {k: np.stack(cols[k]).astype(np.float32)
+                          for k in ("color", "depth", "motion")},
            "near": planes[0][0], "far": planes[0][1]}
+    out[f"x{factor}"]["jitter"] = jitter.astype(np.float32)
     if all(given):
         e = np.asarray(exposure, float)
         if not np.all(np.isfinite(e) & (e > 0)):
@@ -165,11 +186,6 @@ def import_nss(root, factor, out, split="test", names=None, progress=True):
     """Every sequence (or ``names``) of the NSS dataset at ``root`` into one jtus HDF5
     dataset ``out`` (split ``split``, videos named after the sequences), atomically:
     all sequences are read and checked before the file is written."""
-    import h5py
-    from tqdm import tqdm
-
-    from jtus.data import dataset
-    from jtus.files import atomic_path
 
     if split not in dataset.SPLITS:
         raise ValueError(f"--split: expected one of {dataset.SPLITS}, got {split!r}")

@@ -6,7 +6,10 @@ from __future__ import annotations
 
 from typing import Any, Callable, NamedTuple, Optional
 
+import jax
 import jax.numpy as jnp
+
+from jtus import sampling
 
 DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16, "float16": jnp.float16,
           "float64": jnp.float64}
@@ -72,8 +75,6 @@ def exposed_parts(prepare, advance, hdr):
     model (``hdr`` False) given exposure 1 computes exactly what it computes without.
     Returns the wrapped ``(prepare, advance)``; the exposure scale travels with the
     prepared frame."""
-    from jtus import sampling
-
     def prep(frame):
         e = frame.exposure
         if e is None and not hdr:
@@ -98,7 +99,6 @@ def exposed_parts(prepare, advance, hdr):
     return prep, adv
 
 
-
 class Cost(NamedTuple):
     """Analytic cost of one frame (``jtus.cost``)."""
     flops: float             # per frame
@@ -107,9 +107,19 @@ class Cost(NamedTuple):
     activation_bytes: float  # plus the network's intermediates written and read once
 
 
+class ExportIO(NamedTuple):
+    """How a model's step crosses a serialized boundary (``jtus.export``): its state as
+    named plain arrays."""
+    names: tuple                                   # the state's arrays, in order
+    shapes: Callable[[Any, int, int], tuple]       # (config, H, W) -> their shapes
+    to_arrays: Callable[[Any], tuple]              # state -> arrays
+    from_arrays: Callable[..., Any]                # *arrays -> state
+
+
 class Spec(NamedTuple):
-    """One registered model name. A model module lists its ``SPECS``; the registry in
-    ``jtus/models/__init__.py`` collects them (docs/architecture.md)."""
+    """One registered model name and what tools may ask of it. A model module lists
+    its ``SPECS``; the registry in ``jtus/models/__init__.py`` collects them
+    (docs/architecture.md). Tools ask these capabilities, never a model's name."""
     name: str
     make: Callable[[Any], Model]
     config: Callable[[int], Any]        # factor -> the module's Config for this name
@@ -117,6 +127,17 @@ class Spec(NamedTuple):
     trainable: bool = False
     loss: str = "l1"                    # the loss it trains with (``jtus.losses.make``)
     accept: Optional[Callable] = None   # target crop [T,H,W,3] -> keep probability
+    # capabilities
+    dtypes: tuple = ("float32",)        # compute dtypes its config's ``dtype`` takes
+    formulations: tuple = ()            # equivalent formulations (config ``formulation``)
+    kernels: tuple = ()                 # its trunk's implementations (config ``kernels``)
+    network: Optional[Callable] = None  # (params, state, frame, config) -> (fn, args):
+                                        # the network alone, for its timing
+    torch_checkpoint: Optional[Callable] = None  # (path, config) -> params of a .pt
+    torch_state_dict: Optional[Callable] = None  # (params, config) -> PyTorch state_dict
+    torch_reference: str = ""           # its module in jtus.reference (bench, tests)
+    export: Optional[ExportIO] = None   # its step exports (stablehlo, onnx)
+    shipped: bool = False               # weights ship as jtus/weights/<name>-x<f>.msgpack
 
 
 def compute_dtype(name):
@@ -126,7 +147,6 @@ def compute_dtype(name):
 
 
 def param_count(params):
-    import jax
     return sum(int(x.size) for x in jax.tree_util.tree_leaves(params))
 
 

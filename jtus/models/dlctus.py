@@ -29,7 +29,9 @@ compute dtype; the carried history is always float32 (all three are float64 when
 
 from __future__ import annotations
 
+import collections
 import dataclasses
+import pickle
 from typing import NamedTuple, Optional
 
 import jax
@@ -39,12 +41,21 @@ import numpy as np
 from jtus import sampling
 from jtus.data.conventions import FAR, NEAR, linearize_depth
 from jtus.frame import Frame
-from jtus.models import layers
-from jtus.models.base import (Cost, Model, Spec, bind, carry_dtype, compute_dtype,
-                              reset_select)
+from jtus.models import kernels, layers
+from jtus.models.base import (
+    Cost,
+    ExportIO,
+    Model,
+    Spec,
+    bind,
+    carry_dtype,
+    compute_dtype,
+    reset_select,
+)
 
 FORMULATIONS = ("standard", "opt1", "opt2")
 CONV_BACKWARDS = ("autodiff", "custom")
+KERNELS = ("xla", "pallas")  # the trunk as XLA ops, or the fused kernel (models.kernels)
 DOWN = 4  # the network works at 1/4 of the HR resolution
 
 
@@ -63,6 +74,7 @@ class Config:
     # and backward gives the same values, so they change speed only.
     formulation: str = "opt2"
     conv_backward: str = "custom"    # or "autodiff": see layers.conv_edge_fast
+    kernels: str = "xla"         # or "pallas": the trunk as one fused kernel per tile
     channels: int = 32
     blocks: int = 4
 
@@ -82,6 +94,8 @@ class Config:
         if self.conv_backward not in CONV_BACKWARDS:
             raise ValueError(f"conv_backward: expected one of {CONV_BACKWARDS}, "
                              f"got {self.conv_backward!r}")
+        if self.kernels not in KERNELS:
+            raise ValueError(f"kernels: expected one of {KERNELS}, got {self.kernels!r}")
         compute_dtype(self.dtype)
 
 
@@ -120,6 +134,8 @@ def init_state(frame: Frame, config: Config = Config()) -> State:
 
 
 def _trunk(params, h, config):
+    if config.kernels == "pallas":
+        return kernels.trunk(params, h, config.blocks)
     conv = layers.conv_edge_fast if config.conv_backward == "custom" else layers.conv_edge
     for i in range(config.blocks):
         blk = params[f"block{i + 1}"]
@@ -241,11 +257,6 @@ def reproject(state: State, pre: Prepared, config: Config):
     return NetInput(pre.lr, pre.jitter, hist), pre.jau, hist
 
 
-def prepare(state: State, frame: Frame, config: Config):
-    """Stages 1-2: ``(NetInput, jau [B,H,W,4], hist [B,H,W,4])``, float32."""
-    return reproject(state, prepare_frame(frame, config), config)
-
-
 def advance(params, state: State, pre: Prepared, config: Config = Config()):
     """The step on a prepared frame: ``step(p, s, f) == advance(p, s, prepare_frame(f))``."""
     net_in, jau, hist = reproject(state, pre, config)
@@ -282,7 +293,10 @@ def cost(config: Config, H, W) -> Cost:
     return Cost(net + prep + out, net, compulsory, compulsory + act)
 
 
-SPECS = (Spec("dlctus", make, lambda f: Config(factor=f), cost, trainable=True),)
+def network_workload(params, state: State, frame: Frame, config: Config):
+    """``(fn, args)``: the network alone on this frame's input, for its timing."""
+    net_in, _, _ = reproject(state, prepare_frame(frame, config), config)
+    return (lambda p, x: network(p, x, config)), (params, net_in)
 
 
 # ---------------------------------------------------------------- PyTorch interop
@@ -335,9 +349,7 @@ def _torch_shape(hwio):
 
 def params_to_torch(params, config: Config = Config()):
     """The inverse of ``params_from_torch``: an ordered dict of torch tensors (OIHW)."""
-    import collections
-
-    import torch  # only when asked: jtus does not need torch at runtime
+    import torch  # lazy: torch is optional, needed only to write PyTorch tensors
 
     out = collections.OrderedDict()
     for key, path in _torch_names(config.blocks):
@@ -356,9 +368,7 @@ def load_torch_checkpoint(path, config: Config = Config()):
     a ``model_state_dict`` entry, possibly saved from CUDA tensors and holding numpy
     scalars. Loaded on the CPU with ``weights_only=True`` and only numpy's scalar and
     dtype globals allowed: no arbitrary code is unpickled."""
-    import pickle
-
-    import torch
+    import torch  # lazy: torch is optional, needed only to read .pt files
 
     allowed = [np.dtype, type(np.dtype(np.float64)), type(np.dtype(np.float32)),
                type(np.dtype(np.int64)), type(np.dtype(np.int32))]
@@ -386,3 +396,13 @@ def load_torch_checkpoint(path, config: Config = Config()):
                          f"got {type(obj).__name__}")
     obj = {k[len("module."):] if k.startswith("module.") else k: v for k, v in obj.items()}
     return params_from_torch(obj, config)
+
+
+EXPORT = ExportIO(names=("history",), shapes=lambda config, H, W: ((1, H, W, 4),),
+                  to_arrays=lambda state: (state.history,), from_arrays=State)
+
+SPECS = (Spec("dlctus", make, lambda f: Config(factor=f), cost, trainable=True,
+              dtypes=("float32", "bfloat16", "float16"), formulations=FORMULATIONS, kernels=KERNELS,
+              network=network_workload, torch_checkpoint=load_torch_checkpoint,
+              torch_state_dict=params_to_torch, torch_reference="torch_dlctus",
+              export=EXPORT, shipped=True),)

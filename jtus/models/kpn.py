@@ -154,7 +154,8 @@ def cost(config: Config, H, W) -> Cost:
 
 
 # trained with the paper's alias-masked loss (jtus.losses.kpn_loss)
-SPECS = (Spec("kpn", make, lambda f: Config(factor=f), cost, trainable=True, loss="kpn"),)
+SPECS = (Spec("kpn", make, lambda f: Config(factor=f), cost, trainable=True, loss="kpn",
+              torch_reference="torch_kpn"),)
 
 
 

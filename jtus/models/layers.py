@@ -86,9 +86,7 @@ def conv_edge_fast(x, kernel, bias):
     with the flipped, transposed kernel followed by the adjoint of the edge padding,
     all in standard NHWC/HWIO layout through explicit transposes. The padded input is
     the saved residual, so the backward does not pad again. Values and gradients equal
-    ``conv_edge``'s (tested in float64). Earlier forms of the kernel gradient, measured
-    slower: an im2col concatenation (about a tenth of a training step), then one
-    matmul per kernel tap (docs/performance.md).
+    ``conv_edge``'s (tested in float64).
     """
     return conv_edge(x, kernel, bias)
 

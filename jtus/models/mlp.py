@@ -28,6 +28,7 @@ import dataclasses
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jtus import sampling
 from jtus.data.conventions import FAR, NEAR, linearize_depth
@@ -98,7 +99,6 @@ def step(params, state, frame: Frame, config: Config = Config()):
 def acceptance(target, scale=0.05):
     """Probability of keeping a training crop ``[T,H,W,3]``: rises with its mean
     gradient magnitude, ``min(1, g / scale)``, with a floor so flat crops still occur."""
-    import numpy as np
 
     t = np.asarray(target, np.float32).mean(-1)
     g = np.abs(np.diff(t, axis=-1)).mean() + np.abs(np.diff(t, axis=-2)).mean()

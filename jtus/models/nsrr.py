@@ -198,5 +198,6 @@ def cost(config: Config, H, W) -> Cost:
                 compulsory + act)
 
 
-SPECS = (Spec("nsrr", make, lambda f: Config(factor=f), cost, trainable=True),
+SPECS = (Spec("nsrr", make, lambda f: Config(factor=f), cost, trainable=True,
+              torch_reference="torch_nsrr"),
          Spec("nsrr-fast", make, lambda f: Config(factor=f, fast=True), cost, trainable=True))

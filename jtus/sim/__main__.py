@@ -18,26 +18,35 @@ which ``train``, ``evaluate`` and ``upsample`` read like any generated dataset.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
+import platform
 import sys
 import time
 
 import numpy as np
+from PIL import Image
+
+from jtus import cli, timing
+from jtus.data.conventions import linearize_depth
+from jtus.data.dataset import SPLITS
+from jtus.data.exr import linear_to_srgb
+from jtus.files import atomic_path, check_out_file
+from jtus.sampling.jitter import VARIETY, jitter_sequence
+from jtus.sim import SCENES, from_json, get_scene, random_scene, to_json
+from jtus.sim.generate import Preset, generate, preset
+from jtus.sim.scene import EFFECTS, Scene
+from jtus.sim.video import VideoRenderer
 
 
 def _to_u8(x):
-    from jtus.data.exr import linear_to_srgb
     return np.round(linear_to_srgb(x) * 255).astype(np.uint8)
 
 
 def resolve(spec, effects=None):
     """A ``Scene`` from a built-in name, ``random_<seed>``, a ``.json`` path or a seed
     (int); ``effects`` (names) replaces the scene's declared effects."""
-    import dataclasses
-
-    from jtus.sim import from_json, get_scene, random_scene
-    from jtus.sim.scene import EFFECTS
 
     if effects is not None:
         bad = [e for e in effects if e not in EFFECTS]
@@ -61,9 +70,6 @@ def strip(scene, size=128, factor=4, frame=12, spp=16, split="test"):
     """One row: input (nearest-upscaled), target, motion (x red, y green, 0.5 = still;
     ±2 LR pixels full scale), linear depth (near dark); linear RGB in [0,1].
     ``scene``: a ``Scene`` or anything ``resolve`` takes."""
-    from jtus.data.conventions import linearize_depth
-    from jtus.sim.scene import Scene
-    from jtus.sim.video import VideoRenderer
 
     scene = scene if isinstance(scene, Scene) else resolve(scene)
     r = VideoRenderer(scene, (size, size), (factor,), spp)
@@ -86,7 +92,6 @@ def _scenes_from(args):
         effects = [e.strip() for e in args.effects.split(",") if e.strip()]
     specs = list(args.scene or []) + [int(s) for s in (args.random or [])]
     if getattr(args, "all", False):
-        from jtus.sim import SCENES
         specs += list(SCENES)
     if not specs:
         raise ValueError("scene: give --scene NAME|FILE.json, --random SEED or --all")
@@ -94,17 +99,12 @@ def _scenes_from(args):
 
 
 def _check_out(path, force, ext):
-    from jtus.files import check_out_file
-
     check_out_file(path, force, kind=f"a {ext} file")
     if not path.endswith(ext):
         raise ValueError(f"--out: expected a path ending in {ext}, got {path}")
 
 
 def _render(args):
-    from jtus.data import dataset
-    from jtus.sampling.jitter import VARIETY, jitter_sequence
-
     scenes = _scenes_from(args)
     names = [s.name for s in scenes]
     if len(set(names)) != len(names):
@@ -121,20 +121,17 @@ def _render(args):
     for j in jitters:
         for f in args.factors:
             jitter_sequence(j, f)  # refuses unknown names before anything renders
-    preset = dataset.Preset((args.size, args.size), tuple(args.factors), args.spp, 1,
-                            {sp: ((tuple(names) if sp == args.split else ()), args.videos,
-                                  args.frames) for sp in dataset.SPLITS}, jitters)
+    p = Preset((args.size, args.size), tuple(args.factors), args.spp, 1,
+               {sp: ((tuple(names) if sp == args.split else ()), args.videos, args.frames)
+                for sp in SPLITS}, jitters)
     t0 = time.perf_counter()
-    dataset.generate(preset, args.out, progress=not args.quiet,
-                     custom={s.name: s for s in scenes})
+    generate(p, args.out, progress=not args.quiet, custom={s.name: s for s in scenes})
     print(f"wrote {args.out}: {len(names)} scene(s) x {args.videos} video(s) x {args.frames} "
           f"frames in split {args.split!r} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
     return 0
 
 
 def main(argv=None):
-    from jtus.sampling.jitter import VARIETY
-
     p = argparse.ArgumentParser(prog="python -m jtus.sim", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -179,8 +176,7 @@ def main(argv=None):
     c.add_argument("--frames", type=int, default=4)
     c.add_argument("--out", help="write the table as JSON here")
     args = p.parse_args(argv)
-    from jtus.cli import sigterm_as_exit
-    sigterm_as_exit()
+    cli.sigterm_as_exit()
     try:
         return _dispatch(args)
     except (ValueError, FileNotFoundError) as e:
@@ -189,8 +185,6 @@ def main(argv=None):
 
 
 def _dispatch(args):
-    from jtus.sim import SCENES, get_scene, to_json
-
     if args.cmd == "list":
         for name in SCENES:
             print(f"{name:14s} {', '.join(get_scene(name).effects)}")
@@ -200,7 +194,6 @@ def _dispatch(args):
         print(to_json(_scenes_from(args)[0]))
         return 0
     if args.cmd == "preview":
-        from PIL import Image
 
         scenes = _scenes_from(args)
         if os.path.isdir(args.out):
@@ -220,11 +213,6 @@ def effect_costs(seed=3, size=192, frames=4, factors=(2, 4), spp=16):
     """Seconds per frame (inputs at every factor and the target) of random scene
     ``seed`` with no effect, each effect alone, and all of them; warm (compiling
     excluded). Returns a list of ``(label, effects, seconds per frame)``."""
-    import dataclasses
-
-    from jtus.sim import random_scene
-    from jtus.sim.scene import EFFECTS
-    from jtus.sim.video import VideoRenderer
 
     base = random_scene(seed, effects=EFFECTS)
     rows = [("none", ())] + [(e, (e,)) for e in EFFECTS] + [("all", EFFECTS)]
@@ -239,10 +227,7 @@ def effect_costs(seed=3, size=192, frames=4, factors=(2, 4), spp=16):
 
 
 def _cost(args):
-    from jtus.bench import hardware
-
-    hw = hardware()
-    machine = f"{hw['cpu']}, {hw['cores']} cores, JAX {hw['jax']} on {hw['backend']}"
+    machine = timing.hardware_line()
     rows = effect_costs(args.seed, args.size, args.frames)
     base = rows[0][2]
     print(f"random_{args.seed}, {args.size}x{args.size}, inputs at 2x and 4x + 16-spp target, "
@@ -251,7 +236,6 @@ def _cost(args):
     for label, _, sec in rows:
         print(f"| {label} | {sec * 1e3:.0f} | {sec / base:.2f} |")
     if args.out:
-        from jtus.files import atomic_path
         with atomic_path(args.out) as tmp, open(tmp, "w") as fh:
             json.dump({"seed": args.seed, "size": args.size, "frames": args.frames,
                        "machine": machine,
@@ -263,12 +247,6 @@ def _cost(args):
 def _fps(preset_name, frames):
     """Frames per second of rendering a preset's videos (every factor and the
     target), warm, averaged over the built-in scenes."""
-    import platform
-
-    from jtus.data.dataset import preset
-    from jtus.sim import SCENES, get_scene
-    from jtus.sim.video import VideoRenderer
-
     p = preset(preset_name)
     total, n = 0.0, 0
     for name in SCENES:
@@ -285,5 +263,4 @@ def _fps(preset_name, frames):
 
 
 if __name__ == "__main__":
-    from jtus import cli  # not ``from jtus.cli import run``: a module may have its own run
     cli.run(main)

@@ -96,84 +96,75 @@ def _draw_effects(rng):
     return effects or ("texture_detail",)
 
 
-def random_scene(seed: int, effects=None, name=None) -> Scene:
-    """The scene of ``seed``; ``effects`` (a subset of ``EFFECTS``) overrides the
-    drawn ones. Same seed and effects, same spec."""
-    if int(seed) < 0:
-        raise ValueError(f"seed: expected a non-negative integer, got {seed}")
-    # independent streams: overriding the effects (which changes which kinds of
-    # object are drawn) leaves the layout, lights, sky and camera path as they are
-    def stream(*k):
-        return np.random.default_rng([int(seed), 0x5CE4E, *k])
-
-    rng = stream(0)
-    drawn = _draw_effects(rng)
-    effects = tuple(effects) if effects is not None else drawn
-    thin = "thin_geometry" in effects
-    rad = float(rng.uniform(2.0, 4.0))                       # cluster radius, metres
-    objs = [Object("plane", (0.0, 0.0, 0.0), (-1, 0, -1), material=_material(rng, (0.2, 12.0)))]
-    # backdrop walls outside every camera path (paths stay within 11 m of the centre)
-    for k in range(int(rng.integers(0, 4))):
+def _walls(rng):
+    """Backdrop walls outside every camera path (paths stay within 11 m of the centre)."""
+    walls = []
+    for _ in range(int(rng.integers(0, 4))):
         ang = rng.uniform(0, 2 * np.pi)
         dist = rng.uniform(11.5, 15.0)
-        h = rng.uniform(1.0, 4.0)
-        h = round(float(h), 3)
-        objs.append(Object("box", (round(float(dist * np.cos(ang)), 3), h,
-                                   round(float(dist * np.sin(ang)), 3)),
-                           (round(float(rng.uniform(4, 9)), 3), h, 0.15),
-                           round(float(-ang + np.pi / 2), 4),
-                           _material(rng, (0.2, 15.0))))
-    n = int(rng.integers(8, 41))
-    moving_p = rng.uniform(0.2, 0.7)
-    for i in range(n):
-        rng = stream(1, i)
-        if thin:
-            kind = rng.choice(["box", "sphere", "rod", "wire", "platform", "block"],
-                              p=[0.26, 0.22, 0.2, 0.12, 0.08, 0.12])
-        else:  # rods and wires are thin geometry: drawn only where the scene declares it
-            kind = rng.choice(["box", "sphere", "platform", "block"], p=[0.4, 0.34, 0.1, 0.16])
-        r = rad * np.sqrt(rng.uniform())
-        a = rng.uniform(0, 2 * np.pi)
-        x, z = round(float(r * np.cos(a)), 3), round(float(r * np.sin(a)), 3)
-        yaw = round(float(rng.uniform(0, 2 * np.pi)), 4)
-        mat = _material(rng)
-        mot = _motion(rng, moving_p)
-        if kind == "box":
-            s = tuple(round(float(v), 3) for v in rng.uniform(0.08, 0.7, 3))
-            y = s[1] + (rng.uniform(0, 1.2) if rng.uniform() < 0.25 else 0.0)
-            objs.append(Object("box", (x, round(float(y), 3), z), s, yaw, mat, **mot))
-        elif kind == "block":  # large: occluders with long depth edges
-            s = (round(float(rng.uniform(0.5, 1.2)), 3), round(float(rng.uniform(0.4, 1.3)), 3),
-                 round(float(rng.uniform(0.2, 1.0)), 3))
-            objs.append(Object("box", (x, s[1], z), s, yaw, mat))
-        elif kind == "sphere":
-            rr = float(np.exp(rng.uniform(np.log(0.05), np.log(0.8))))
-            y = rr + (rng.uniform(0, 1.2) if rng.uniform() < 0.3 else 0.0)
-            objs.append(Object("sphere", (x, round(y, 3), z), (round(rr, 4), 0, 0), yaw, mat,
-                               **mot))
-        elif kind == "rod":  # sub-pixel to a few pixels wide at typical distances
-            rr = float(np.exp(rng.uniform(np.log(0.004), np.log(0.05))))
-            hh = float(rng.uniform(0.3, 1.3))
-            objs.append(Object("rod", (x, round(hh, 3), z), (round(rr, 4), round(hh, 3), 0), yaw,
-                               mat, **mot))
-        elif kind == "wire":
-            th = float(np.exp(rng.uniform(np.log(0.003), np.log(0.03))))
-            y = float(rng.uniform(0.3, 2.5))
-            objs.append(Object("box", (x, round(y, 3), z),
-                               (round(float(rng.uniform(1.0, 4.0)), 3), round(th, 4), round(th, 4)),
-                               yaw, mat))
-        else:  # a raised platform (a finite horizontal plane)
-            s = (round(float(rng.uniform(0.4, 1.5)), 3), 0, round(float(rng.uniform(0.4, 1.5)), 3))
-            objs.append(Object("plane", (x, round(float(rng.uniform(0.3, 1.2)), 3), z), s, yaw,
-                               mat))
-    rng = stream(2)
-    if "emissive_flicker" in effects:  # at least two emitters that can flicker
-        for i in rng.choice(np.arange(1, len(objs)), size=min(2, len(objs) - 1), replace=False):
-            o = objs[int(i)]
-            m = dataclasses.replace(o.material, emission=round(float(rng.uniform(0.5, 2.0)), 3),
-                                    flicker_hz=round(float(rng.uniform(1.0, 8.0)), 3))
-            objs[int(i)] = dataclasses.replace(o, material=m)
-    rng = stream(5)
+        h = round(float(rng.uniform(1.0, 4.0)), 3)
+        walls.append(Object("box", (round(float(dist * np.cos(ang)), 3), h,
+                                    round(float(dist * np.sin(ang)), 3)),
+                            (round(float(rng.uniform(4, 9)), 3), h, 0.15),
+                            round(float(-ang + np.pi / 2), 4),
+                            _material(rng, (0.2, 15.0))))
+    return walls
+
+
+def _object(rng, thin, rad, moving_p):
+    """One object of the cluster (within ``rad`` metres of the centre)."""
+    if thin:
+        kind = rng.choice(["box", "sphere", "rod", "wire", "platform", "block"],
+                          p=[0.26, 0.22, 0.2, 0.12, 0.08, 0.12])
+    else:  # rods and wires are thin geometry: drawn only where the scene declares it
+        kind = rng.choice(["box", "sphere", "platform", "block"], p=[0.4, 0.34, 0.1, 0.16])
+    r = rad * np.sqrt(rng.uniform())
+    a = rng.uniform(0, 2 * np.pi)
+    x, z = round(float(r * np.cos(a)), 3), round(float(r * np.sin(a)), 3)
+    yaw = round(float(rng.uniform(0, 2 * np.pi)), 4)
+    mat = _material(rng)
+    mot = _motion(rng, moving_p)
+    if kind == "box":
+        s = tuple(round(float(v), 3) for v in rng.uniform(0.08, 0.7, 3))
+        y = s[1] + (rng.uniform(0, 1.2) if rng.uniform() < 0.25 else 0.0)
+        return Object("box", (x, round(float(y), 3), z), s, yaw, mat, **mot)
+    if kind == "block":  # large: occluders with long depth edges
+        s = (round(float(rng.uniform(0.5, 1.2)), 3), round(float(rng.uniform(0.4, 1.3)), 3),
+             round(float(rng.uniform(0.2, 1.0)), 3))
+        return Object("box", (x, s[1], z), s, yaw, mat)
+    if kind == "sphere":
+        rr = float(np.exp(rng.uniform(np.log(0.05), np.log(0.8))))
+        y = rr + (rng.uniform(0, 1.2) if rng.uniform() < 0.3 else 0.0)
+        return Object("sphere", (x, round(y, 3), z), (round(rr, 4), 0, 0), yaw, mat, **mot)
+    if kind == "rod":  # sub-pixel to a few pixels wide at typical distances
+        rr = float(np.exp(rng.uniform(np.log(0.004), np.log(0.05))))
+        hh = float(rng.uniform(0.3, 1.3))
+        return Object("rod", (x, round(hh, 3), z), (round(rr, 4), round(hh, 3), 0), yaw, mat,
+                      **mot)
+    if kind == "wire":
+        th = float(np.exp(rng.uniform(np.log(0.003), np.log(0.03))))
+        y = float(rng.uniform(0.3, 2.5))
+        return Object("box", (x, round(y, 3), z),
+                      (round(float(rng.uniform(1.0, 4.0)), 3), round(th, 4), round(th, 4)),
+                      yaw, mat)
+    # a raised platform (a finite horizontal plane)
+    s = (round(float(rng.uniform(0.4, 1.5)), 3), 0, round(float(rng.uniform(0.4, 1.5)), 3))
+    return Object("plane", (x, round(float(rng.uniform(0.3, 1.2)), 3), z), s, yaw, mat)
+
+
+def _with_emitters(rng, objs):
+    """At least two objects made emitters that can flicker (``emissive_flicker``)."""
+    objs = list(objs)
+    for i in rng.choice(np.arange(1, len(objs)), size=min(2, len(objs) - 1), replace=False):
+        o = objs[int(i)]
+        m = dataclasses.replace(o.material, emission=round(float(rng.uniform(0.5, 2.0)), 3),
+                                flicker_hz=round(float(rng.uniform(1.0, 8.0)), 3))
+        objs[int(i)] = dataclasses.replace(o, material=m)
+    return objs
+
+
+def _lights(rng):
+    """``(sun, point lights)``: a directional sun, and zero to two point lights."""
     elev = rng.uniform(0.25, 1.2)
     az = rng.uniform(0, 2 * np.pi)
     sun = Light("directional", (round(float(-np.cos(elev) * np.cos(az)), 4),
@@ -187,6 +178,32 @@ def random_scene(seed: int, effects=None, name=None) -> Scene:
                         _colour(rng, (0.0, 0.6), (0.6, 1.0)), 0.0,
                         round(float(rng.uniform(0.03, 0.1)), 4))
                   for _ in range(int(rng.choice([0, 0, 1, 2]))))
+    return sun, extra
+
+
+def random_scene(seed: int, effects=None, name=None) -> Scene:
+    """The scene of ``seed``; ``effects`` (a subset of ``EFFECTS``) overrides the
+    drawn ones. Same seed and effects, same spec."""
+    if int(seed) < 0:
+        raise ValueError(f"seed: expected a non-negative integer, got {seed}")
+
+    # independent streams: overriding the effects (which changes which kinds of
+    # object are drawn) leaves the layout, lights, sky and camera path as they are
+    def stream(*k):
+        return np.random.default_rng([int(seed), 0x5CE4E, *k])
+
+    rng = stream(0)
+    drawn = _draw_effects(rng)
+    effects = tuple(effects) if effects is not None else drawn
+    rad = float(rng.uniform(2.0, 4.0))                       # cluster radius, metres
+    objs = [Object("plane", (0.0, 0.0, 0.0), (-1, 0, -1), material=_material(rng, (0.2, 12.0)))]
+    objs += _walls(rng)
+    n = int(rng.integers(8, 41))
+    moving_p = rng.uniform(0.2, 0.7)
+    objs += [_object(stream(1, i), "thin_geometry" in effects, rad, moving_p) for i in range(n)]
+    if "emissive_flicker" in effects:
+        objs = _with_emitters(stream(2), objs)
+    sun, extra = _lights(stream(5))
     path = _path(stream(3), rad)
     rng = stream(4)
     sky = (_colour(rng, (0.0, 0.4), (0.5, 0.95)), _colour(rng, (0.2, 0.8), (0.3, 0.9)))

@@ -180,21 +180,93 @@ def _project(cam, x, direction=False):
     return jnp.stack([(sx + 1) / 2, (1 - sy) / 2], -1)
 
 
+def _albedo(st, tex_kinds, obj, u, v, n, dn, dist, pixel_angle):
+    """Each hit's base colour: the object's colour, through its prefiltered texture
+    (``texture_detail``) with the filter width of its footprint."""
+    albedo = jnp.asarray(st.color)[obj]
+    if not tex_kinds:
+        return albedo
+    cos = jnp.maximum(jnp.abs((n * dn).sum(-1)), 0.25)
+    scale = jnp.asarray(st.tex_scale)[obj]
+    width = dist * pixel_angle / cos * scale
+    tex_id = jnp.asarray(st.tex)[obj]
+    tu, tv = u * scale, v * scale * jnp.asarray(st.tex_aspect)[obj]
+    seed = jnp.asarray(st.tex_seed)[obj]
+    value = jnp.ones_like(u)
+    for name in tex_kinds:
+        if name in textures.TEXTURE_FNS:
+            tval = textures.TEXTURE_FNS[name](tu, tv, width)
+        else:
+            tval = textures.SEEDED_FNS[name](tu, tv, width, seed)
+        value = jnp.where(tex_id == TEXTURES.index(name), tval, value)
+    dark = jnp.asarray(st.dark)[obj]
+    return dark + (albedo - dark) * value[:, None]
+
+
+def _shade(scene, st, state, albedo, x, n, dn, obj, pos, yaw, gain):
+    """Ambient, then each light's diffuse term (shadowed with ``shadows``) and its
+    highlight (``specular``), then emission (``emissive_flicker``)."""
+    lights = (scene.light,) + tuple(scene.extra_lights)
+    color = albedo * lights[0].ambient
+    for i, light in enumerate(lights):
+        lv = state["light"][i]
+        if light.kind == "directional":
+            ldir = jnp.broadcast_to(-lv / jnp.linalg.norm(lv), x.shape)
+            ldist = jnp.full(x.shape[:1], _INF)
+            intensity = 1.0
+        else:
+            to_l = lv - x
+            ldist = jnp.linalg.norm(to_l, axis=-1)
+            ldir = to_l / ldist[:, None]
+            intensity = (20.0 / (1.0 + ldist * ldist))[:, None]
+        lcol = jnp.asarray(light.color, jnp.float32) * intensity
+        diffuse = jnp.maximum((n * ldir).sum(-1, keepdims=True), 0.0)
+        vis = 1.0
+        if scene.has("shadows"):
+            occluded = _intersect(st, x + 1e-3 * n, ldir, pos, yaw, any_hit_before=ldist)
+            vis = jnp.where(occluded, 0.0, 1.0)[:, None]
+        color = color + albedo * lcol * diffuse * vis
+        if scene.has("specular"):
+            h = ldir - dn
+            h = h / jnp.maximum(jnp.linalg.norm(h, axis=-1, keepdims=True), 1e-9)
+            lobe = jnp.maximum((n * h).sum(-1), 0.0) ** jnp.asarray(st.shine)[obj]
+            color = color + (gain * jnp.asarray(st.spec)[obj] * lobe)[:, None] * lcol * vis
+    if scene.has("emissive_flicker"):
+        glow = (gain * state["emission"][st.index][obj])[:, None]
+        color = color + glow * jnp.asarray(st.color)[obj]
+    return color
+
+
+def _screen_motion(scene, st, state, x, p_obj, obj, dn, hit, xy):
+    """Backward motion in normalized units: where each hit point (moved back with its
+    object under ``object_motion``), or the sky's direction, was on the previous frame."""
+    if scene.has("object_motion"):
+        ppos = state["prev_obj_pos"][st.index][obj]
+        pyaw = state["prev_obj_yaw"][st.index][obj]
+        x_prev = _to_world(p_obj, pyaw) + ppos
+    else:
+        x_prev = x
+    prev = state["prev_camera"]
+    moved = _project(prev, x_prev)
+    moved_sky = _project(prev, dn, direction=True)
+    return jnp.where(hit[:, None], moved, moved_sky) - xy
+
+
 def make_renderer(scene: Scene, motion: bool = True):
     """The jitted ``render(state, xy [N,2], pixel_angle) -> dict`` for this scene.
 
     ``pixel_angle`` is the texture filter's footprint in radians per sample (the
     mip bias is folded into it). The dict holds ``color [N,3]`` (clamped to [0,1]; with
     ``hdr`` linear radiance >= 0, highlights scaled by ``scene.highlight_gain``),
-    ``depth [N,1]`` and, with ``motion``, ``motion [N,2]`` (normalized units).
+    ``depth [N,1]`` and, with ``motion``, ``motion [N,2]`` (normalized units). Only
+    the effects the scene declares are traced.
     """
     st = _Static(scene)
-    has = scene.has
-    tex_kinds = sorted({TEXTURES[t] for t in st.tex if t != 0}) if has("texture_detail") else []
+    tex_kinds = (sorted({TEXTURES[t] for t in st.tex if t != 0})
+                 if scene.has("texture_detail") else [])
     near, far = scene.near, scene.far
     horizon, zenith = (jnp.asarray(c, jnp.float32) for c in scene.sky)
-    lights = (scene.light,) + tuple(scene.extra_lights)
-    hdr = has("hdr")
+    hdr = scene.has("hdr")
     gain = scene.highlight_gain if hdr else 1.0
 
     def render(state, xy, pixel_angle):
@@ -215,51 +287,9 @@ def make_renderer(scene: Scene, motion: bool = True):
         n = _to_world(n_obj, yaw[obj])
         dn = d / jnp.linalg.norm(d, axis=-1, keepdims=True)
         n = jnp.where((n * dn).sum(-1, keepdims=True) > 0, -n, n)
-        albedo = jnp.asarray(st.color)[obj]
-        if tex_kinds:
-            cos = jnp.maximum(jnp.abs((n * dn).sum(-1)), 0.25)
-            dist = t_safe * jnp.linalg.norm(d, axis=-1)
-            scale = jnp.asarray(st.tex_scale)[obj]
-            width = dist * pixel_angle / cos * scale
-            tex_id = jnp.asarray(st.tex)[obj]
-            tu, tv = u * scale, v * scale * jnp.asarray(st.tex_aspect)[obj]
-            seed = jnp.asarray(st.tex_seed)[obj]
-            value = jnp.ones_like(u)
-            for name in tex_kinds:
-                if name in textures.TEXTURE_FNS:
-                    tval = textures.TEXTURE_FNS[name](tu, tv, width)
-                else:
-                    tval = textures.SEEDED_FNS[name](tu, tv, width, seed)
-                value = jnp.where(tex_id == TEXTURES.index(name), tval, value)
-            dark = jnp.asarray(st.dark)[obj]
-            albedo = dark + (albedo - dark) * value[:, None]
-        color = albedo * lights[0].ambient
-        for i, light in enumerate(lights):
-            lv = state["light"][i]
-            if light.kind == "directional":
-                ldir = jnp.broadcast_to(-lv / jnp.linalg.norm(lv), x.shape)
-                ldist = jnp.full(t.shape, _INF)
-                intensity = 1.0
-            else:
-                to_l = lv - x
-                ldist = jnp.linalg.norm(to_l, axis=-1)
-                ldir = to_l / ldist[:, None]
-                intensity = (20.0 / (1.0 + ldist * ldist))[:, None]
-            lcol = jnp.asarray(light.color, jnp.float32) * intensity
-            diffuse = jnp.maximum((n * ldir).sum(-1, keepdims=True), 0.0)
-            vis = 1.0
-            if has("shadows"):
-                occluded = _intersect(st, x + 1e-3 * n, ldir, pos, yaw, any_hit_before=ldist)
-                vis = jnp.where(occluded, 0.0, 1.0)[:, None]
-            color = color + albedo * lcol * diffuse * vis
-            if has("specular"):
-                h = ldir - dn
-                h = h / jnp.maximum(jnp.linalg.norm(h, axis=-1, keepdims=True), 1e-9)
-                lobe = jnp.maximum((n * h).sum(-1), 0.0) ** jnp.asarray(st.shine)[obj]
-                color = color + (gain * jnp.asarray(st.spec)[obj] * lobe)[:, None] * lcol * vis
-        if has("emissive_flicker"):
-            glow = (gain * state["emission"][st.index][obj])[:, None]
-            color = color + glow * jnp.asarray(st.color)[obj]
+        albedo = _albedo(st, tex_kinds, obj, u, v, n, dn,
+                         t_safe * jnp.linalg.norm(d, axis=-1), pixel_angle)
+        color = _shade(scene, st, state, albedo, x, n, dn, obj, pos, yaw, gain)
         sky = horizon + (zenith - horizon) * jnp.clip(dn[:, 1:2], 0.0, 1.0)
         color = jnp.where(hit[:, None], color, sky)
         # LDR scenes clamp to display range; hdr keeps linear radiance (>= 0)
@@ -268,16 +298,7 @@ def make_renderer(scene: Scene, motion: bool = True):
         ndc = jnp.clip(far / (far - near) * (1 - near / z), 0, 1)
         out["depth"] = jnp.where(hit, ndc, 1.0)[:, None]
         if motion:
-            if has("object_motion"):
-                ppos = state["prev_obj_pos"][st.index][obj]
-                pyaw = state["prev_obj_yaw"][st.index][obj]
-                x_prev = _to_world(p_obj, pyaw) + ppos
-            else:
-                x_prev = x
-            prev = state["prev_camera"]
-            moved = _project(prev, x_prev)
-            moved_sky = _project(prev, dn, direction=True)
-            out["motion"] = jnp.where(hit[:, None], moved, moved_sky) - xy
+            out["motion"] = _screen_motion(scene, st, state, x, p_obj, obj, dn, hit, xy)
         return out
 
     return jax.jit(render)

@@ -6,7 +6,10 @@ its declared effects (an undeclared effect's parameters are ignored by the rende
 
 from __future__ import annotations
 
-from jtus.sim.scene import LDR_EFFECTS, Light, Material, Object, Path, Scene
+import dataclasses
+
+from jtus.sim import randomized
+from jtus.sim.scene import EFFECTS, LDR_EFFECTS, Light, Material, Object, Path, Scene
 
 GROUND = Object("plane", (0, 0, 0), (-1, 0, -1),
                 material=Material((0.55, 0.55, 0.5), "checker", 1.0))
@@ -93,8 +96,6 @@ NAMES = tuple(_SUITE)
 
 def get(name: str) -> Scene:
     """A built-in scene by name, or ``random_<seed>`` from the randomized family."""
-    from jtus.sim import randomized
-
     seed = randomized.seed_of(name)
     if seed is not None:
         return randomized.random_scene(seed)
@@ -109,11 +110,6 @@ def with_effects(scene: Scene, add) -> Scene:
     order). A randomized scene is drawn again with them, so that effects that shape
     its objects (emitters for ``emissive_flicker``, rods for ``thin_geometry``) get
     them; layout, lights, sky and path stay those of its seed."""
-    import dataclasses
-
-    from jtus.sim import randomized
-    from jtus.sim.scene import EFFECTS
-
     missing = [e for e in add if e not in scene.effects]
     if not missing:
         return scene
@@ -123,7 +119,3 @@ def with_effects(scene: Scene, add) -> Scene:
             scene, name=randomized.name_of(seed)):
         return randomized.random_scene(seed, effects, name=scene.name)
     return dataclasses.replace(scene, effects=effects)
-
-
-def all_scenes():
-    return [get(n) for n in NAMES]

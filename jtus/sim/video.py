@@ -7,6 +7,7 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
+from jtus.frame import Frame
 from jtus.sampling import halton, jitter_sequence
 from jtus.sim import paths, render
 from jtus.sim.scene import Scene
@@ -133,7 +134,6 @@ def static_hold(scene: Scene, size, factor, jitter, length, spp=16, split="test"
     temporal up-sampler shows after the jitter cycle is its steady state).
     ``renderer``: a ``VideoRenderer`` of this scene to reuse (one compilation for many
     holds); its size and spp then apply."""
-    from jtus.frame import Frame
 
     r = renderer or VideoRenderer(scene, (size, size), (factor,), spp)
     st = paths.timeline(scene, split, 0, 1, 1.0)[0]

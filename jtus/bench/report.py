@@ -1,0 +1,67 @@
+"""The bench's report as Markdown tables (``python -m jtus.bench``)."""
+
+from __future__ import annotations
+
+NAN = float("nan")
+
+
+def _peak(report):
+    p = report["peak"]
+    return [f"Peak (same run): matmul 2048^3 {p['matmul_gflops']:.1f} GFLOP/s; "
+            f"3x3 conv 32->32 at 270x480 {p['conv_dlctus_gflops']:.1f} GFLOP/s; "
+            f"3x3 conv 64->64 at 256x256 {p['conv_64_gflops']:.1f} GFLOP/s.", ""]
+
+
+def _infer(report):
+    lines = ["| model | size | factor | dtype | formulation | kernels | ms/frame | GFLOP/frame | "
+             "GFLOP/s | network ms | network GFLOP/s | % of conv peak | torch ms | "
+             "torch/jtus |",
+             "| --- " * 14 + "|"]
+    conv_peak = report.get("peak", {}).get("conv_dlctus_gflops")
+    for r in report["infer"]:
+        pct = (f"{100 * r['network_gflops'] / conv_peak:.0f}%"
+               if conv_peak and "network_gflops" in r else "")
+        lines.append(
+            f"| {r['model']} | {r['size']} | {r['factor']}x | {r['dtype']} | "
+            f"{r.get('formulation', '')} | {r.get('kernels', '')} | {r['ms']:.1f} | "
+            f"{r['gflop']:.2f} | {r['gflops']:.1f} | {r.get('network_ms', NAN):.1f} | "
+            f"{r.get('network_gflops', NAN):.1f} | {pct} | {r.get('torch_ms', NAN):.1f} | "
+            f"{r.get('torch_over_jtus', NAN):.2f} |")
+    return lines + [""]
+
+
+def _train(report):
+    lines = ["| model | warp | s/step | frames/s | torch s/step | torch frames/s | torch/jtus | "
+             "step memory (MiB) | x bound at conv peak |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for r in report["train"]:
+        bound = r.get("bound_s_at_conv_peak")
+        lines.append(
+            f"| {r['model']} | {r['warp']} | {r['s_per_step']:.3f} | {r['frames_per_s']:.1f} | "
+            f"{r.get('torch_s_per_step', NAN):.3f} | {r.get('torch_frames_per_s', NAN):.1f} | "
+            f"{r.get('torch_over_jtus', NAN):.2f} | {r.get('peak_mib', NAN):.0f} | "
+            f"{r['s_per_step'] / bound if bound else NAN:.2f} |")
+    r = report["train"][0]
+    scan = "unrolled" if r["unroll"] else "rolled"
+    remat = f", remat {r['remat']}" if r["remat"] else ""
+    lines += ["", f"Training step: {r['factor']}x, crop {r['crop']}, batch {r['batch']}, "
+              f"sequence {r['seq']}, loss on the last {r['loss_frames']}, Adam; {scan} scan, "
+              f"{r['conv_backward']} conv backward{remat}"
+              f"{', preparation hoisted' if r.get('hoist') else ''}. Frames/s counts batch x "
+              f"sequence per step; step memory is XLA's plan (temporaries, arguments, "
+              f"outputs); the bound is 3x the forward FLOPs at the measured convolution "
+              f"peak, which no implementation on this machine's convolutions beats."]
+    return lines
+
+
+def markdown(report):
+    hw = report["hardware"]
+    lines = [f"Hardware: {hw['cpu']}, {hw['cores']} cores, JAX {hw['jax']} on {hw['backend']}.",
+             f"Command: `{report['command']}`", ""]
+    if "peak" in report:
+        lines += _peak(report)
+    if "infer" in report:
+        lines += _infer(report)
+    if "train" in report:
+        lines += _train(report)
+    return "\n".join(lines).rstrip()

@@ -1,0 +1,160 @@
+"""Herveau et al.'s kernel-prediction TAA network (seed ``002``) as a PyTorch module of
+its own, with jtus's adaptation to up-sampling, written from the paper's text and
+``docs/comparison.md`` rather than from ``jtus/models/kpn.py``: its own parameter
+layout (``nn.Conv2d`` per layer, one per jitter phase where the paper switches
+weight sets), its own Catmull-Rom reprojection and its own input preparation.
+
+From the paper (sec. 4): the input is the current RGB with per-pixel motion and depth,
+plus eight feedback channels (the previous anti-aliased RGB and five hidden channels)
+reprojected with Catmull-Rom; four zero-padded convolutions (3x3, 3x3, 5x5, then the
+5x5 kernel layer) with ReLU after all but the last, and a 1x1 "hidden" layer without
+activation from the third layer's output; the last three layers switch among weight
+sets by the jitter index; two 5x5 kernels mix the 5x5 neighbourhoods of the current
+colour and of the reprojected previous RGB (eq. 3).
+
+Choices that are jtus's, not the paper's (an anti-aliasing network given an
+up-sampling task; docs/comparison.md), each pinned by the test against jtus:
+- the current colour is the jitter-aligned bilinear up-sampling of the LR frame, and
+  depth (linearized) and motion (times f, in HR pixels) are up-sampled bilinearly;
+- the kernels are normalized by a softmax over all 50 weights (the paper's text says
+  a sigmoid "to normalize the sum of all kernel elements to 1", which a sigmoid does
+  not do);
+- Catmull-Rom taps outside the image are clamped to the edge; a reprojected position
+  outside the image reads zeros; a reset frame's feedback is the current colour and
+  zero hidden channels, unwarped;
+- the colour mix pads the neighbourhoods with zeros (the paper's zero padding);
+- the jitter index is the nearest entry of the jitter sequence.
+"""
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+HIDDEN = 5
+
+
+class KPN(nn.Module):
+    def __init__(self, phases, width=12):
+        super().__init__()
+        self.conv1 = nn.Conv2d(3 + 1 + 2 + 3 + HIDDEN, width, 3, padding=1)
+        self.conv2 = nn.ModuleList(nn.Conv2d(width, width, 3, padding=1) for _ in range(phases))
+        self.conv3 = nn.ModuleList(nn.Conv2d(width, width, 5, padding=2) for _ in range(phases))
+        self.hidden = nn.Conv2d(width, HIDDEN, 1)
+        self.kernel = nn.ModuleList(nn.Conv2d(width, 50, 5, padding=2) for _ in range(phases))
+
+    def forward(self, x, phase):
+        h = F.relu(self.conv1(x))
+        h = F.relu(self.conv2[phase](h))
+        h = F.relu(self.conv3[phase](h))
+        return torch.softmax(self.kernel[phase](h), 1), self.hidden(h)
+
+
+def to_jtus(net):
+    """This module's parameters in jtus's tree (HWIO kernels, phase-stacked sets)."""
+    def one(conv):
+        return {"kernel": conv.weight.detach().numpy().transpose(2, 3, 1, 0),
+                "bias": conv.bias.detach().numpy()}
+
+    def sets(convs):
+        parts = [one(c) for c in convs]
+        return {k: np.stack([p[k] for p in parts]) for k in ("kernel", "bias")}
+
+    return {"conv1": one(net.conv1), "conv2": sets(net.conv2), "conv3": sets(net.conv3),
+            "hidden": one(net.hidden), "kernel": sets(net.kernel)}
+
+
+def catmull_rom(img, x, y):
+    """Sample ``img [B,C,H,W]`` at pixel positions ``x, y [B,H',W']`` (centres at
+    i + 0.5) with the Catmull-Rom spline (Keys a = -0.5), taps clamped to the image."""
+    b, c, h, w = img.shape
+    u, v = x - 0.5, y - 0.5
+    x0, y0 = torch.floor(u), torch.floor(v)
+    tx, ty = u - x0, v - y0
+
+    def weights(t):  # the four taps at -1, 0, 1, 2
+        return [((-0.5 * t + 1.0) * t - 0.5) * t,
+                (1.5 * t - 2.5) * t * t + 1.0,
+                ((-1.5 * t + 2.0) * t + 0.5) * t,
+                (0.5 * t - 0.5) * t * t]
+
+    wx, wy = weights(tx), weights(ty)
+    flat = img.reshape(b, c, h * w)
+    out = torch.zeros(b, c, *x.shape[1:], dtype=img.dtype)
+    for j in range(4):
+        yy = (y0 + j - 1).clamp(0, h - 1).long()
+        for i in range(4):
+            xx = (x0 + i - 1).clamp(0, w - 1).long()
+            idx = (yy * w + xx).reshape(b, 1, -1).expand(b, c, -1)
+            tap = torch.gather(flat, 2, idx).reshape(b, c, *x.shape[1:])
+            out = out + (wy[j] * wx[i])[:, None] * tap
+    return out
+
+
+def jau(color, jitter, f):
+    """Jitter-aligned bilinear up-sampling: HR centre P reads the LR image at
+    ``P / f - jitter + 0.5`` (border padding)."""
+    b, _, h, w = color.shape
+    xs = (torch.arange(w * f, dtype=color.dtype) + 0.5) / f
+    ys = (torch.arange(h * f, dtype=color.dtype) + 0.5) / f
+    gx = xs[None, None, :] - jitter[:, 0, None, None] + 0.5
+    gy = ys[None, :, None] - jitter[:, 1, None, None] + 0.5
+    grid = torch.stack([(2 * gx / w - 1).expand(b, h * f, w * f),
+                        (2 * gy / h - 1).expand(b, h * f, w * f)], -1)
+    return F.grid_sample(color, grid, mode="bilinear", padding_mode="border",
+                         align_corners=False)
+
+
+def step(net, feedback, color, depth, motion, jitter, reset, phases, f, near=0.1, far=100.0):
+    """One frame, NCHW: ``feedback [B,8,H,W]`` (None on a sequence's first frame);
+    returns ``(rgb [B,3,H,W], feedback)``."""
+    b, _, h, w = color.shape
+    cur = jau(color, jitter, f)
+    lin = (near * far / (far - depth * (far - near)) - near) / (far - near)
+    up = lambda t: F.interpolate(t, scale_factor=f, mode="bilinear", align_corners=False)  # noqa: E731
+    mv = up(motion) * f
+    fresh = torch.cat([cur, torch.zeros(b, HIDDEN, h * f, w * f, dtype=cur.dtype)], 1)
+    if feedback is None:
+        rep = fresh
+    else:
+        px = torch.arange(w * f, dtype=cur.dtype)[None, None, :] + 0.5 + mv[:, 0]
+        py = torch.arange(h * f, dtype=cur.dtype)[None, :, None] + 0.5 + mv[:, 1]
+        rep = catmull_rom(feedback, px, py)
+        inside = ((px >= 0) & (px <= w * f) & (py >= 0) & (py <= h * f))[:, None]
+        rep = torch.where(inside, rep, torch.zeros_like(rep))
+        rep = torch.where(reset[:, None, None, None], fresh, rep)
+    x = torch.cat([cur, up(lin), mv, rep], 1)
+    d = (jitter[:, None, :] - phases[None]).abs().sum(-1)
+    index = d.argmin(-1)
+    outs, hiddens = [], []
+    for i in range(b):
+        wts, hid = net(x[i:i + 1], int(index[i]))
+        def mix(img, wk):
+            patches = F.unfold(img, 5, padding=2).view(1, 3, 25, h * f, w * f)
+            return (patches * wk[:, None]).sum(2)
+        outs.append(mix(cur[i:i + 1], wts[:, :25]) + mix(rep[i:i + 1, :3], wts[:, 25:]))
+        hiddens.append(hid)
+    out = torch.cat(outs)
+    return out, torch.cat([out, torch.cat(hiddens)], 1)
+
+
+def infer_workload(config, size):
+    """One inference step of this KPN at HR ``size`` (batch 1, random inputs and
+    weights) as a blocking callable, for ``python -m jtus.bench``; ``config`` is jtus's
+    KPN config (its factor and jitter phases)."""
+    f = config.factor
+    h, w = size[0] // f, size[1] // f
+    r = np.random.default_rng(0)
+    t = lambda a: torch.from_numpy(np.ascontiguousarray(a, np.float32))  # noqa: E731
+    color, depth = t(r.uniform(size=(1, 3, h, w))), t(r.uniform(0.5, 1.0, size=(1, 1, h, w)))
+    motion, jitter = t(r.normal(scale=0.5, size=(1, 2, h, w))), t(r.uniform(size=(1, 2)))
+    phases = t(np.asarray(config.phases()))
+    net = KPN(len(phases))
+    reset = torch.zeros(1, dtype=torch.bool)
+    fb = [None]
+
+    def run():
+        with torch.no_grad():
+            _, fb[0] = step(net, fb[0], color, depth, motion, jitter, reset, phases, f)
+
+    return run

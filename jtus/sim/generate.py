@@ -1,0 +1,158 @@
+"""Datasets rendered by the simulator: the built-in presets, ``generate`` and
+``ensure_dataset``.
+
+A preset says, per split, which scenes, how many videos per scene and how many
+frames each; ``generate`` renders it into the HDF5 layout of ``jtus.data.dataset``
+(``docs/data.md``), written to a temporary name beside the destination and renamed
+when complete, so an interrupted run leaves nothing behind.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import sys
+
+import h5py
+import numpy as np
+from tqdm import tqdm
+
+from jtus.data.dataset import SPLITS, write_root_attrs, write_video
+from jtus.files import atomic_path
+from jtus.sampling.jitter import VARIETY
+from jtus.sim import randomized
+from jtus.sim.paths import video_seed
+from jtus.sim.suite import NAMES as SCENES
+from jtus.sim.suite import get as get_scene
+from jtus.sim.suite import with_effects
+from jtus.sim.video import VideoRenderer
+
+
+@dataclasses.dataclass(frozen=True)
+class Preset:
+    """What ``generate`` renders: per split, (scene names, videos per scene, frames).
+
+    ``effects``: effects added to every scene (``("hdr", ...)`` for HDR data).
+    ``jitters``: the jitter sequences a video draws from (``jtus.sampling.jitter``);
+    each video's choice and its starting phase come from its own seed and are stored
+    (``jitter`` per frame, the sequence's name in the video's attrs)."""
+    size: tuple
+    factors: tuple
+    spp: int
+    spp_match: int
+    splits: dict
+    jitters: tuple = ("thesis",)
+    effects: tuple = ()   # added to every scene's own (``jtus.sim.with_effects``)
+
+    def total_frames(self):
+        return sum(len(s) * n * t for s, n, t in self.splits.values())
+
+
+def _random(split, count):
+    return tuple(randomized.name_of(s) for s in randomized.split_seeds(split, count))
+
+
+def _presets():
+    all_ = tuple(SCENES)
+    return {
+        "tiny": Preset((32, 32), (2, 4), 4, 1, {
+            "train": (("camera_orbit", "objects"), 1, 8), "val": (("camera_orbit",), 1, 8),
+            "test": (("objects",), 1, 8)}),
+        "default": Preset((256, 256), (2, 4), 16, 1, {
+            "train": (all_, 2, 24),
+            "val": (("camera_orbit", "objects", "fence_pan", "everything"), 1, 24),
+            "test": (all_, 1, 30)}),
+        # 40-frame videos at 128x128 for sequence-length studies (BPTT over up to 40
+        # frames; the default data's training videos have 24)
+        "long": Preset((128, 128), (2, 4), 16, 1, {
+            "train": (all_, 1, 40), "val": (("camera_orbit", "everything"), 1, 40),
+            "test": (all_, 1, 40)}),
+        "paper": Preset((1080, 1920), (2, 4), 64, 1, {
+            "train": (all_, 6, 60), "val": (all_[:10], 1, 60), "test": (all_[:10], 1, 60)}),
+        # generalization: 200 randomized scenes for training, unseen seeds for validation
+        # and test, the 13 hand-made scenes as a second test family; every jitter
+        # sequence (docs/data.md)
+        # (192x192: 256x256 rendered at about half the speed, docs/data.md)
+        "diverse": Preset((192, 192), (2, 4), 16, 1, {
+            "train": (_random("train", 200), 1, 16), "val": (_random("val", 8), 1, 16),
+            "test": (_random("test", 16) + all_, 1, 24)}, VARIETY),
+        # the same family in seconds, for tests
+        "diverse-tiny": Preset((32, 32), (2, 4), 4, 1, {
+            "train": (_random("train", 3), 1, 8), "val": (_random("val", 1), 1, 8),
+            "test": (_random("test", 1) + ("objects",), 1, 8)}, VARIETY),
+        # HDR: the diverse family with highlights above 1 and an exposure per frame
+        "hdr": Preset((192, 192), (2, 4), 16, 1, {
+            "train": (_random("train", 200), 1, 16), "val": (_random("val", 8), 1, 16),
+            "test": (_random("test", 16) + all_, 1, 24)}, VARIETY, _HDR),
+        "hdr-tiny": Preset((32, 32), (2, 4), 4, 1, {
+            "train": (_random("train", 3), 1, 8), "val": (_random("val", 1), 1, 8),
+            "test": (_random("test", 1) + ("objects",), 1, 8)}, VARIETY, _HDR),
+    }
+
+
+_HDR = ("hdr", "specular", "emissive_flicker")
+
+
+PRESET_NAMES = ("tiny", "default", "long", "paper", "diverse", "diverse-tiny", "hdr", "hdr-tiny")
+
+
+def preset(name) -> Preset:
+    p = _presets()
+    if name not in p:
+        raise ValueError(f"preset: expected one of {PRESET_NAMES}, got {name!r}")
+    return p[name]
+
+
+def video_jitter(choices, scene_name, split, index):
+    """``(sequence name, phase)`` of one video: the only choice when there is one
+    (phase 0, the thesis's setup), else drawn from the video's own seed."""
+    if len(choices) == 1:
+        return choices[0], 0
+    rng = np.random.default_rng([video_seed(scene_name, split, index), 0x717])
+    return str(choices[int(rng.integers(len(choices)))]), int(rng.integers(0, 64))
+
+
+def generate(name_or_preset, out, progress=True, scenes=None, custom=None):
+    """Render a preset into ``out`` (HDF5), atomically, with a progress bar.
+
+    ``scenes``: render only these names of the preset; ``custom``: ``{name: Scene}``
+    for names that are not built-in (scenes declared in JSON)."""
+    p = preset(name_or_preset) if isinstance(name_or_preset, str) else name_or_preset
+    bar = tqdm(total=p.total_frames(), unit="frame", desc=f"generate {out}", disable=not progress)
+    renderers = {}
+    with atomic_path(out) as tmp, h5py.File(tmp, "w") as fh:
+        write_root_attrs(fh, p.size, p.factors, p.spp, p.spp_match)
+        for split in SPLITS:
+            names, per_scene, length = p.splits[split]
+            for name in names:
+                if scenes is not None and name not in scenes:
+                    continue
+                if name not in renderers:
+                    scene = custom[name] if custom and name in custom else get_scene(name)
+                    scene = with_effects(scene, p.effects)
+                    renderers[name] = VideoRenderer(scene, p.size, p.factors, p.spp,
+                                                    p.spp_match)
+                r = renderers[name]
+                for i in range(per_scene):
+                    jit, phase = video_jitter(p.jitters, name, split, i)
+                    video = r.video(split, i, length, progress=bar.update, jitter=jit,
+                                    jitter_phase=phase)
+                    g = fh.create_group(f"{split}/{name}_{i:02d}")
+                    g.attrs.update({"scene": name, "effects": json.dumps(list(r.scene.effects)),
+                                    "length": length, "index": i, "jitter_sequence": jit,
+                                    "jitter_phase": phase, "near": r.scene.near,
+                                    "far": r.scene.far})
+                    write_video(g, video, p.factors, p.spp_match)
+        fh.flush()
+    bar.close()
+    return out
+
+
+def ensure_dataset(path, preset_name, progress=True):
+    """``path``, generated from the built-in preset ``preset_name`` first if missing."""
+    if not os.path.exists(path):
+        print(f"{path} is missing: generating the {preset_name!r} preset (once)",
+              file=sys.stderr)
+        generate(preset_name, path, progress=progress)
+    return path
