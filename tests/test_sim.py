@@ -201,3 +201,23 @@ def test_suite_covers_every_effect_alone():
     assert len(sim.SCENES) >= 8
     # moving light is shown with shadows; hdr is added to scenes by the hdr preset
     assert set(sim.EFFECTS) - alone <= {"moving_light", "hdr"}
+
+
+def test_adaptive_target_refines_only_where_samples_disagree():
+    """``adaptive_target`` is the base-sample target where no pixel's samples disagree,
+    the refined-sample target where all do, and between those refines a border of
+    pixels around each busy one (the measured trade: experiments/adaptive_targets.py)."""
+    scene = sim.get_scene("fence_pan")
+    st = paths.timeline(scene, "test", 0, 1, 1.0)[0]
+    base = VideoRenderer(scene, (16, 16), (4,), spp=4)
+    fine = VideoRenderer(scene, (16, 16), (4,), spp=16)
+    none, share0 = base.adaptive_target(st, 4, 16, threshold=2.0)
+    every, share1 = base.adaptive_target(st, 4, 16, threshold=-1.0)
+    np.testing.assert_array_equal(none, base.target(st))
+    np.testing.assert_array_equal(every, fine.target(st))
+    assert (share0, share1) == (0.0, 1.0)
+    some, share = base.adaptive_target(st, 4, 16, threshold=1 / 64)
+    assert 0 < share < 1
+    changed = np.any(some != none, -1)  # refined pixels: the 16-sample values exactly
+    assert 0 < changed.mean() <= share
+    np.testing.assert_array_equal(some[changed], every[changed])
