@@ -1,0 +1,321 @@
+"""The experiment scripts' own logic, each loaded as a module: the ablations' variants
+and run bookkeeping, the comparison table's systems and targets, the comparison
+runs' logs, the README figure's choice, the training script's per-run overrides."""
+
+import dataclasses
+import json
+import os
+import re
+
+import numpy as np
+import pytest
+
+from jtus import loading, recipe, train
+from jtus.config import PRESETS
+
+
+def test_train_comparison_script_passes_valid_configs():
+    """Every run of experiments/train_comparison.sh (each model's arguments, its
+    per-factor override, both factors) parses into a valid training config, so a typo
+    there fails here and not hours into a background run."""
+    import shlex
+
+    text = open(os.path.join(os.path.dirname(__file__), "..", "experiments",
+                             "train_comparison.sh")).read()
+    common = shlex.split(re.search(r'^common="([^"]*)"', text, re.M).group(1)
+                         .replace("${EXTRA:-}", ""))
+
+    def table(name):  # the bash associative array NAME: key -> argument string
+        body = re.search(rf"^declare -A {name}=\((.*?)^\)", text, re.M | re.S).group(1)
+        return dict(re.findall(r'^\s+\[([\w-]+)\]="([^"]*)"', body, re.M))
+
+    args, override = table("args"), table("override")
+    assert set(args) == {"mlp", "kpn", "nsrr-fast", "nsrr"}
+    assert set(override) <= {f"{m}-{f}" for m in args for f in (2, 4)}, override
+    for m, a in args.items():
+        for f in (4, 2):
+            argv = common + shlex.split(a) + shlex.split(override.get(f"{m}-{f}", "")) + [
+                "--factor", str(f), "--workdir", "unused"]
+            cfg = train.config_from_argv(argv)
+            assert (cfg.model, cfg.factor, cfg.dataset) == (m, f, PRESETS["diverse"].dataset)
+            if f"{m}-{f}" in override:
+                assert "--lr" not in override[f"{m}-{f}"] or cfg.lr != train.config_from_argv(
+                    common + shlex.split(a) + ["--factor", str(f)]).lr
+
+
+def _load_experiment(name, folder="experiments"):
+    """An experiment script (or a tool) as a module (its folder on sys.path while it
+    loads, as when it runs as a script)."""
+    import importlib.util
+    import sys
+
+    exp = os.path.join(os.path.dirname(__file__), "..", folder)
+    sys.path.insert(0, exp)
+    try:
+        spec = importlib.util.spec_from_file_location(name, os.path.join(exp, f"{name}.py"))
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(exp)
+    return module
+
+
+def _load_ablations():
+    return _load_experiment("ablations")
+
+
+def test_ablation_studies_build_valid_models():
+    """Every variant of experiments/ablations.py is a valid training config whose model
+    builds and differs from the first variant's where the study says (a typo in a model
+    override would otherwise surface hours into a run)."""
+    ablations = _load_ablations()
+    for study, field, expected in (("accumulation", "accumulation", [True, False]),
+                                   ("warp", "warp", ["bicubic", "bilinear"]),
+                                   ("theta", None, None)):
+        vs = ablations.variants(study, [0.2, 0.8])
+        cfgs = [dataclasses.replace(PRESETS["diverse"], **ch) for _, ch in vs]
+        built = [recipe.model_for(c) for c in cfgs]
+        if field:
+            assert [getattr(m.config, field) for m in built] == expected
+        else:
+            assert [(c.loss, c.theta) for c in cfgs[1:]] == [("st-linear", 0.2),
+                                                             ("st-linear", 0.8)]
+            assert cfgs[0].loss == "l1"
+        assert len({ablations.slug(label) for label, _ in vs}) == len(vs)
+    with pytest.raises(ValueError, match="study"):
+        ablations.variants("nope", [])
+    # DLCTUS as the recipe has it is a variant of all three studies: it trains once,
+    # under the accumulation study; the other variants train in their own study
+    base = dataclasses.replace(PRESETS["diverse"], lr=ablations.LR)
+    shared = os.path.join(ablations.ROOT, "runs", "ablation-accumulation", "with_buffer-s3")
+    for study, expected in (("accumulation", [shared, "without_buffer-s3"]),
+                            ("warp", [shared, "bilinear-s3"]),
+                            ("theta", [shared, "l_st_linear_θ_0_2-s3", "l_st_linear_θ_0_8-s3"])):
+        dirs = [ablations.run_of(study, label, ch, base, 3, [0.2, 0.8])[0]
+                for label, ch in ablations.variants(study, [0.2, 0.8])]
+        assert dirs[0] == shared
+        assert [os.path.relpath(d, os.path.join(ablations.ROOT, "runs", f"ablation-{study}"))
+                for d in dirs[1:]] == expected[1:]
+    # a variant that reads another's run resumes it with that run's own config (the
+    # bicubic variant sets the warp the recipe already has: the same network, but a
+    # config that train's resume check would refuse)
+    label, bicubic = ablations.variants("warp", [])[0]
+    work, cfg = ablations.run_of("warp", label, bicubic, base, 3)
+    assert work == shared and cfg == dataclasses.replace(base, seed=3)
+    assert cfg != dataclasses.replace(base, seed=3, **bicubic)
+    # at another learning rate the runs (and results) have their own folders
+    other = dataclasses.replace(base, lr=1e-3)
+    assert ablations.run_of("warp", "bilinear", ablations.variants("warp", [])[1][1], other,
+                            3)[0] == os.path.join(ablations.ROOT, "runs",
+                                               "ablation-warp-lr0.001", "bilinear-s3")
+    assert ablations.study_name("theta", 1e-3) == "ablation-theta-lr0.001"
+    # a run's checkpoint goes to experiments/checkpoints/ablation-<study>/<run>/ and back
+    work = os.path.join(ablations.ROOT, "runs", "ablation-warp", "bilinear-s4")
+    assert os.path.relpath(ablations.saved_dir(work), ablations.ROOT) == os.path.join(
+        "experiments", "checkpoints", "ablation-warp", "bilinear-s4")
+
+
+def test_ablation_progress_reads_the_committed_runs(tmp_path, monkeypatch):
+    """Before a study's table exists, docs/results.md lists its committed runs: epochs
+    done of the config's, the last validation PSNR, collapsed (train.collapsed) or not."""
+    ablations = _load_experiment("common")  # the ablations' run bookkeeping
+    monkeypatch.setattr(ablations, "ROOT", str(tmp_path))
+    assert ablations.runs_so_far("warp") == []
+    keys = ("epoch", "step", "train_loss", "grad_norm", "grad_norm_max", "param_norm",
+            "val_loss", "val_psnr")
+    for run, rows in (("with_buffer-s0", [(1, 4, 0.1, 0.5, 0.9, 3, 0.2, 24.5),
+                                          (2, 8, 0.1, 0.4, 0.8, 3, 0.19, 25.25)]),
+                      ("with_buffer-s1", [(1, 4, 0.1, 0.0, 0.0, 3, 0.3, 20.0)])):
+        d = tmp_path / "experiments" / "checkpoints" / "ablation-accumulation" / run
+        d.mkdir(parents=True)
+        (d / "config.json").write_text('{"epochs": 10}')
+        (d / "metrics.json").write_text(json.dumps([dict(zip(keys, r)) for r in rows]))
+    text = "\n".join(ablations.runs_so_far("accumulation"))
+    assert "| with_buffer-s0 | 2 of 10 | 25.25 | in training |" in text
+    assert "| with_buffer-s1 | 1 of 10 | 20.00 | collapsed (the gradient norm stayed" in text
+
+
+def test_collapse_probe_reads_committed_runs_over_their_first_epochs(tmp_path):
+    """experiments/collapse_probe.py: a committed ablation run joins the table with its
+    variant, learning rate and seed from its folder and config, judged collapsed or not
+    (train.collapsed) on its first epochs only."""
+    cp = _load_experiment("collapse_probe")
+    keys = ("epoch", "grad_norm", "grad_norm_max", "val_loss", "val_psnr")
+    for run, lr, rows in (("without_buffer-s3", 1e-3, [(1, 0.1, 0.2, 0.3, 25.1),
+                                                         (2, 0.0, 0.0, 0.3, 25.1),
+                                                         (3, 0.0, 0.0, 0.3, 25.1)]),
+                          ("with_buffer-s0", 3e-4, [(1, 0.1, 0.2, 0.3, 26.0),
+                                                    (2, 0.1, 0.2, 0.2, 26.5),
+                                                    (3, 0.0, 0.0, 0.2, 26.5)])):
+        d = tmp_path / run
+        d.mkdir()
+        (d / "config.json").write_text(json.dumps({"lr": lr, "epochs": 10}))
+        (d / "metrics.json").write_text(json.dumps([dict(zip(keys, r)) for r in rows]))
+    got = {r["seed"]: r for r in cp.committed_runs(str(tmp_path), 2)}
+    assert (got[3]["variant"], got[3]["lr"], got[3]["epochs"]) == ("without buffer", 1e-3, 2)
+    assert "gradient norm stayed below" in got[3]["collapsed"]
+    assert (got[0]["variant"], got[0]["val_psnr"], got[0]["collapsed"]) == (
+        "with buffer", [26.0, 26.5], None)  # its third epoch's zero gradient is not read
+
+
+def test_runs_are_saved_and_restored(tmp_path):
+    """Ablation studies and comparison runs span sessions through committed copies of
+    their checkpoints (experiments/saved_runs.py, called by ablations.py and by
+    train_comparison.sh as a command: exit 1 when there is nothing to copy)."""
+    saved_runs = _load_experiment("saved_runs")
+    src, dst = tmp_path / "run", tmp_path / "saved"
+    src.mkdir()
+    assert not saved_runs.copy_run(str(src), str(dst))  # no checkpoint: nothing copied
+    assert saved_runs.main([str(src), str(dst)]) == 1
+    assert not dst.exists()
+    for name, text in (("checkpoint.msgpack", "ck"), ("config.json", "{}"),
+                       ("metrics.csv", "epoch"), ("training.png", "not kept")):
+        (src / name).write_text(text)
+    assert saved_runs.main([str(src), str(dst)]) == 0
+    assert sorted(os.listdir(dst)) == ["checkpoint.msgpack", "config.json", "metrics.csv"]
+    assert (dst / "checkpoint.msgpack").read_text() == "ck"
+
+
+def test_comparison_table_systems_and_targets():
+    """experiments/comparison_table.py: every system is listed at both factors with a
+    spec that loads (or none, when it has no training on the diverse data), and the
+    targets' margins and verdicts follow their thresholds."""
+    ct = _load_experiment("comparison_table")
+    for f in (4, 2):
+        rows = ct.systems(f)
+        assert [r[0] for r in rows] == ["jau", "tus", "dlctus", *ct.SYSTEMS]
+        for label, spec, status, budget in rows:
+            if spec is None:
+                assert budget is None and "not trained" in status
+                continue
+            entry = loading.load(spec, f)
+            assert entry is not None and entry.label == label
+            if label not in ("jau", "tus"):
+                assert budget["steps"] > 0 and budget["seconds"] > 0
+    psnr = lambda v: {"psnr": v}  # noqa: E731
+    res = {"4": {"random": {"dlctus": psnr(30.0), "tus": psnr(28.0), "jau": psnr(27.0),
+                            "nsrr": psnr(27.5)},
+                 "external": {"dlctus": psnr(22.0), "tus": psnr(22.5), "jau": psnr(21.0)}},
+           "2": {"handmade": {"dlctus": psnr(33.4), "tus": psnr(32.0), "jau": psnr(31.0),
+                              "mlp": psnr(31.5)}}}
+    got = {what: (round(m, 6), ok) for what, m, ok in ct.targets(res)}
+    assert got == {"DLCTUS - TUS >= 2.0 dB, random, 4x": (2.0, True),
+                   "DLCTUS - TUS > 0, external, 4x": (-0.5, False),
+                   "nsrr - JAU > 0, random, 4x": (0.5, True),
+                   "DLCTUS - TUS >= 1.5 dB, handmade, 2x": (1.4, False),
+                   "mlp - JAU > 0, handmade, 2x": (0.5, True),
+                   "NSRR - TUS > 0, random, 4x": (-0.5, False)}
+
+
+def test_readme_figure_takes_the_best_trained_system_on_validation(tmp_path):
+    """experiments/readme_figure.py's default comparison column: the trained system with
+    the highest validation PSNR, never a baseline, with a clear error when none scored."""
+    rf = _load_experiment("readme_figure")
+    d = tmp_path / "docs" / "results" / "comparison-val" / "x4"
+    d.mkdir(parents=True)
+    scores = {"jau": 25.3, "tus": 25.4, "dlctus-shipped": 28.3, "mlp": 25.0, "nsrr": 27.1,
+              "nsrr-fast": 27.0}
+    (d / "results.json").write_text(json.dumps({"4": {k: {"psnr": v} for k, v in
+                                                      scores.items()}}))
+    assert rf.best_on_validation(4, str(tmp_path)) == "nsrr=experiments/weights/nsrr-x4.msgpack"
+    (d / "results.json").write_text(json.dumps({"4": {"jau": {"psnr": 1.0}}}))
+    with pytest.raises(ValueError, match="no comparison system scored"):
+        rf.best_on_validation(4, str(tmp_path))
+
+
+def test_training_summary_takes_the_longer_log(tmp_path):
+    """A run's newest log is its longer one (file times mean nothing in a fresh clone);
+    on a tie the exported (finished) one; logs of other data are not counted."""
+    ts = _load_experiment("training_summary")
+
+    def log(rel, epochs, dataset="data/diverse.h5", cfg_name="config.json"):
+        d = tmp_path / os.path.dirname(rel)
+        d.mkdir(parents=True, exist_ok=True)
+        rows = "epoch,step,val_psnr,seconds\n" + "".join(
+            f"{e},{100 * e},{20 + e},10\n" for e in range(1, epochs + 1))
+        (tmp_path / rel).write_text(rows)
+        (d / cfg_name).write_text(json.dumps({"epochs": 40, "dataset": dataset}))
+
+    log("experiments/checkpoints/kpn-diverse-x2/metrics.csv", 20)
+    log("experiments/weights/kpn-x2-training.csv", 40, cfg_name="kpn-x2.json")
+    rows, planned, src = ts.find("kpn", 2, str(tmp_path))
+    assert (len(rows), planned, src) == (40, 40, "experiments/weights/kpn-x2-training.csv")
+    log("experiments/checkpoints/mlp-diverse-x4/metrics.csv", 7)
+    log("experiments/weights/mlp-x4-training.csv", 3, cfg_name="mlp-x4.json")
+    assert ts.find("mlp", 4, str(tmp_path))[2].startswith("experiments/checkpoints/")
+    log("experiments/weights/nsrr-x4-training.csv", 3, dataset="data/default.h5",
+        cfg_name="nsrr-x4.json")
+    assert ts.find("nsrr", 4, str(tmp_path)) is None
+    s = ts.summarize(rows, planned)
+    assert (s["epochs"], s["steps"], s["best"], s["last_fifth"], s["flat"]) == \
+        (40, 4000, 60.0, 8.0, False)
+    # train_comparison.sh skips a run only when its exported log reaches the planned
+    # epochs: not when the longer log is a checkpoint's, nor when more epochs are planned
+    assert ts.finished("kpn", 2, 40, str(tmp_path))
+    assert not ts.finished("kpn", 2, 41, str(tmp_path))
+    assert not ts.finished("mlp", 4, 3, str(tmp_path))
+    assert not ts.finished("nsrr", 4, 3, str(tmp_path))
+
+
+def test_comparison_table_only_rescores_the_named_systems(tmp_path, monkeypatch):
+    """comparison_table.py --only: the named system is scored again, every other row is
+    carried over from the earlier result with the command that scored it; a system
+    without weights, or an earlier result of other factors, is refused."""
+    import sys
+
+    ct = _load_experiment("comparison_table")
+    written = []
+    monkeypatch.setattr(ct, "write", lambda name, table, data, note="": written.append(
+        (table, data, note)))
+    monkeypatch.setattr(ct, "RESULTS", str(tmp_path))
+
+    def scorer(value):
+        return lambda entries, fam, f, root: {e.label: {"psnr": value, "ssim": 0.5,
+                                                        "temporal": 0.1} for e in entries}
+
+    monkeypatch.setattr(ct, "score", scorer(20.0))
+    # NSRR without any weights, whatever runs the repository holds at the time
+    find = ct.find
+    monkeypatch.setattr(ct, "find", lambda m, f, root: None if m == "nsrr" else find(m, f, root))
+    monkeypatch.setattr(sys, "argv", ["experiments/comparison_table.py", "--first"])
+    root = tmp_path / "root"  # the data is only checked to exist: score is replaced
+    (root / "data").mkdir(parents=True)
+    (root / "data" / "diverse.h5").write_bytes(b"")
+    fam = ["--families", "random", "--data-root", str(root), "--thesis", ""]
+    ct.main(["--factors", "4", *fam])
+    first = written[-1][1]
+    labels = [lab for lab, spec, _, _ in ct.systems(4) if spec]
+    assert sorted(first["4"]["random"]) == sorted(labels)
+    (tmp_path / "comparison-table").mkdir(exist_ok=True)  # readme.md is written there
+    (tmp_path / "comparison-table" / "result.json").write_text(json.dumps(first))
+    monkeypatch.setattr(ct, "score", scorer(30.0))
+    monkeypatch.setattr(sys, "argv", ["experiments/comparison_table.py", "--second"])
+    ct.main(["--factors", "4", *fam, "--only", "dlctus"])
+    table, data, note = written[-1]
+    got = {lab: v["psnr"] for lab, v in data["4"]["random"].items()}
+    assert got == {lab: 30.0 if lab == "dlctus" else 20.0 for lab in labels}
+    assert data["4"]["made_by"]["dlctus"].endswith("--second")
+    assert data["4"]["made_by"]["jau"].endswith("--first")
+    assert "4x jau: `python experiments/comparison_table.py --first`" in note
+    assert "| dlctus | shipped | 30.00 / 0.5000 / 0.10000 |" in table
+    with pytest.raises(SystemExit):  # no weights to evaluate
+        ct.main(["--factors", "4", *fam, "--only", "nsrr"])
+    with pytest.raises(SystemExit):  # the earlier result has no 2x
+        ct.main(["--factors", "4", "2", *fam, "--only", "dlctus"])
+
+
+def test_ablation_table_sets_each_gap_against_the_thesis():
+    """The line under an ablation table: each variant's mean PSNR gap to the first
+    variant, its standard error over independent seeds, and the thesis's gap (Table 16:
+    35.23 - 35.49 dB without the buffer)."""
+    ablations = _load_ablations()
+    trained = [{"variant": "with buffer", "psnr": p} for p in (29.0, 29.2, 29.4)] + \
+              [{"variant": "without buffer", "psnr": p} for p in (29.5, 29.6)]
+    lines = ablations.against_thesis("accumulation", trained)
+    se = np.sqrt(0.04 / 3 + 0.005 / 2)  # sample variances 0.04 and 0.005
+    assert lines[-1] == f"| without buffer | +0.35 | {se:.2f} | -0.26 |"
+    assert ablations.against_thesis("accumulation", []) == []
+    # a θ the thesis did not train has no thesis gap
+    lines = ablations.against_thesis("theta", [{"variant": "L1", "psnr": 30.0},
+                                               {"variant": "L_st-linear θ=0.25", "psnr": 29.9}])
+    assert lines[-1] == "| L_st-linear θ=0.25 | -0.10 | - | - |"  # one seed: no spread
