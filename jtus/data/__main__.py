@@ -30,6 +30,9 @@ def _parser():
     g.add_argument("--preset", choices=generate.PRESET_NAMES, default="default")
     g.add_argument("--out", required=True)
     g.add_argument("--quiet", action="store_true")
+    g.add_argument("--workers", type=int, default=generate.default_workers(),
+                   help="rendering processes, one per core (default: every core this "
+                        "process may use)")
     i = sub.add_parser("import-exr", help="an EXR sequence into the HDF5 layout")
     i.add_argument("--input", required=True, help="folder of LR per-frame EXRs")
     i.add_argument("--target", required=True, help="folder of HR per-frame EXRs")
@@ -122,7 +125,10 @@ def main(argv=None):
     try:
         if args.cmd == "generate":
             check_out_file(args.out, kind="an .h5 file")
-            generate.generate(args.preset, args.out, progress=not args.quiet)
+            if args.workers < 1:
+                raise ValueError(f"--workers: expected a positive integer, got {args.workers}")
+            generate.generate(args.preset, args.out, progress=not args.quiet,
+                              workers=args.workers)
             print(f"wrote {args.out}")
         elif args.cmd == "import-exr":
             _import(args)

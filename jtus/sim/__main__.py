@@ -35,7 +35,7 @@ from jtus.data.exr import linear_to_srgb
 from jtus.files import atomic_path, check_out_file
 from jtus.sampling.jitter import VARIETY, jitter_sequence
 from jtus.sim import SCENES, from_json, get_scene, random_scene, to_json
-from jtus.sim.generate import Preset, generate, preset
+from jtus.sim.generate import Preset, default_workers, generate, preset
 from jtus.sim.scene import EFFECTS, Scene
 from jtus.sim.video import VideoRenderer
 
@@ -115,8 +115,8 @@ def _render(args):
     for f in args.factors:
         if f not in (2, 4):
             raise ValueError(f"--factors: expected 2 and/or 4, got {f}")
-    if args.frames < 1 or args.videos < 1 or args.spp < 1:
-        raise ValueError("--frames, --videos and --spp: expected positive integers")
+    if args.frames < 1 or args.videos < 1 or args.spp < 1 or args.workers < 1:
+        raise ValueError("--frames, --videos, --spp and --workers: expected positive integers")
     jitters = VARIETY if args.jitter == "variety" else (args.jitter,)
     for j in jitters:
         for f in args.factors:
@@ -125,7 +125,8 @@ def _render(args):
                {sp: ((tuple(names) if sp == args.split else ()), args.videos, args.frames)
                 for sp in SPLITS}, jitters)
     t0 = time.perf_counter()
-    generate(p, args.out, progress=not args.quiet, custom={s.name: s for s in scenes})
+    generate(p, args.out, progress=not args.quiet, custom={s.name: s for s in scenes},
+             workers=args.workers)
     print(f"wrote {args.out}: {len(names)} scene(s) x {args.videos} video(s) x {args.frames} "
           f"frames in split {args.split!r} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
     return 0
@@ -163,6 +164,8 @@ def main(argv=None):
     r.add_argument("--size", type=int, default=256, help="HR frame size (square)")
     r.add_argument("--factors", type=int, nargs="+", default=[2, 4])
     r.add_argument("--spp", type=int, default=16, help="target samples per pixel")
+    r.add_argument("--workers", type=int, default=default_workers(),
+                   help="rendering processes, one per core (default: every core)")
     r.add_argument("--split", default="test", choices=("train", "val", "test"))
     r.add_argument("--jitter", default="thesis",
                    help=f"one of {VARIETY}, halton<N>, or 'variety' (drawn per video)")

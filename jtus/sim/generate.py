@@ -12,7 +12,11 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import pickle
+import subprocess
 import sys
+import tempfile
+import threading
 
 import h5py
 import numpy as np
@@ -113,46 +117,136 @@ def video_jitter(choices, scene_name, split, index):
     return str(choices[int(rng.integers(len(choices)))]), int(rng.integers(0, 64))
 
 
-def generate(name_or_preset, out, progress=True, scenes=None, custom=None):
+def _videos(p: Preset, scenes=None):
+    """``[(split, scene name, index, length)]`` of a preset, in the file's order."""
+    out = []
+    for split in SPLITS:
+        names, per_scene, length = p.splits[split]
+        out += [(split, name, i, length) for name in names
+                if scenes is None or name in scenes for i in range(per_scene)]
+    return out
+
+
+def _render_into(fh, p: Preset, videos, custom, progress):
+    """Render ``videos`` of preset ``p`` into the open HDF5 file ``fh``; one compiled
+    renderer per scene."""
+    renderers = {}
+    for split, name, i, length in videos:
+        if name not in renderers:
+            scene = custom[name] if custom and name in custom else get_scene(name)
+            renderers[name] = VideoRenderer(with_effects(scene, p.effects), p.size, p.factors,
+                                            p.spp, p.spp_match)
+        r = renderers[name]
+        jit, phase = video_jitter(p.jitters, name, split, i)
+        video = r.video(split, i, length, progress=progress, jitter=jit, jitter_phase=phase)
+        g = fh.create_group(f"{split}/{name}_{i:02d}")
+        g.attrs.update({"scene": name, "effects": json.dumps(list(r.scene.effects)),
+                        "length": length, "index": i, "jitter_sequence": jit,
+                        "jitter_phase": phase, "near": r.scene.near, "far": r.scene.far})
+        write_video(g, video, p.factors, p.spp_match)
+
+
+def _worker(args_path):
+    """A worker process (``python -m jtus.sim.generate ARGS``): its share of the videos
+    into a part file, on one core, printing a line per frame rendered."""
+    with open(args_path, "rb") as fh:
+        p, videos, custom, path, core = pickle.load(fh)
+    if core is not None and hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {core})
+    with h5py.File(path, "w") as fh:
+        _render_into(fh, p, videos, custom, lambda n: print(n, flush=True))
+
+
+def _start_worker(p, videos, custom, path, core):
+    """A worker as a fresh interpreter (``-m``: no caller's ``__main__`` re-imported, no
+    forked JAX runtime), with this process's ``jtus`` first on its path."""
+    with open(path + ".args", "wb") as fh:
+        pickle.dump((p, videos, custom, path, core), fh)
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [root] + [x for x in os.environ.get("PYTHONPATH", "").split(os.pathsep) if x]))
+    return subprocess.Popen([sys.executable, "-m", "jtus.sim.generate", path + ".args"],
+                            stdout=subprocess.PIPE, text=True, env=env)
+
+
+def _render_parallel(fh, p, videos, custom, workers, bar):
+    """Render ``videos`` in ``workers`` processes (scenes dealt round-robin, each
+    worker pinned to a core of this process's), then copy their videos into ``fh`` in
+    the preset's order: the same file a single process writes."""
+    names = list(dict.fromkeys(v[1] for v in videos))
+    share = [[v for v in videos if names.index(v[1]) % workers == k] for k in range(workers)]
+    cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    with tempfile.TemporaryDirectory(dir=os.path.dirname(os.path.abspath(fh.filename))) as d:
+        parts = [os.path.join(d, f"part{k}.h5") for k in range(workers)]
+        procs = [_start_worker(p, share[k], custom, parts[k],
+                               cores[k % len(cores)] if cores else None)
+                 for k in range(workers) if share[k]]
+        try:
+            readers = [threading.Thread(target=lambda proc=proc: [
+                bar.update(int(line)) for line in proc.stdout], daemon=True) for proc in procs]
+            for t in readers:
+                t.start()
+            codes = [proc.wait() for proc in procs]
+            for t in readers:
+                t.join()
+        finally:
+            for proc in procs:
+                if proc.poll() is None:
+                    proc.kill()
+        if any(codes):
+            raise RuntimeError(f"generate: worker processes failed (exit codes {codes}); "
+                               f"nothing was written")
+        srcs = [h5py.File(part, "r") if share[k] else None for k, part in enumerate(parts)]
+        try:
+            for split, name, i, _ in videos:
+                src = srcs[names.index(name) % workers]
+                src.copy(src[f"{split}/{name}_{i:02d}"], fh.require_group(split),
+                         name=f"{name}_{i:02d}")
+        finally:
+            for src in srcs:
+                if src is not None:
+                    src.close()
+
+
+def generate(name_or_preset, out, progress=True, scenes=None, custom=None, workers=1):
     """Render a preset into ``out`` (HDF5), atomically, with a progress bar.
 
     ``scenes``: render only these names of the preset; ``custom``: ``{name: Scene}``
-    for names that are not built-in (scenes declared in JSON)."""
+    for names that are not built-in (scenes declared in JSON); ``workers``: processes
+    rendering in parallel, each pinned to a core (``default_workers()``: one per core
+    this process may use); every count writes the same videos."""
     p = preset(name_or_preset) if isinstance(name_or_preset, str) else name_or_preset
-    bar = tqdm(total=p.total_frames(), unit="frame", desc=f"generate {out}", disable=not progress)
-    renderers = {}
+    if not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers: expected a positive integer, got {workers!r}")
+    videos = _videos(p, scenes)
+    bar = tqdm(total=sum(v[3] for v in videos), unit="frame", desc=f"generate {out}",
+               disable=not progress)
     with atomic_path(out) as tmp, h5py.File(tmp, "w") as fh:
         write_root_attrs(fh, p.size, p.factors, p.spp, p.spp_match)
-        for split in SPLITS:
-            names, per_scene, length = p.splits[split]
-            for name in names:
-                if scenes is not None and name not in scenes:
-                    continue
-                if name not in renderers:
-                    scene = custom[name] if custom and name in custom else get_scene(name)
-                    scene = with_effects(scene, p.effects)
-                    renderers[name] = VideoRenderer(scene, p.size, p.factors, p.spp,
-                                                    p.spp_match)
-                r = renderers[name]
-                for i in range(per_scene):
-                    jit, phase = video_jitter(p.jitters, name, split, i)
-                    video = r.video(split, i, length, progress=bar.update, jitter=jit,
-                                    jitter_phase=phase)
-                    g = fh.create_group(f"{split}/{name}_{i:02d}")
-                    g.attrs.update({"scene": name, "effects": json.dumps(list(r.scene.effects)),
-                                    "length": length, "index": i, "jitter_sequence": jit,
-                                    "jitter_phase": phase, "near": r.scene.near,
-                                    "far": r.scene.far})
-                    write_video(g, video, p.factors, p.spp_match)
+        if workers > 1 and len({v[1] for v in videos}) > 1:
+            _render_parallel(fh, p, videos, custom, workers, bar)
+        else:
+            _render_into(fh, p, videos, custom, bar.update)
         fh.flush()
     bar.close()
     return out
 
 
-def ensure_dataset(path, preset_name, progress=True):
-    """``path``, generated from the built-in preset ``preset_name`` first if missing."""
+def default_workers():
+    """One rendering process per core this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else \
+        (os.cpu_count() or 1)
+
+
+def ensure_dataset(path, preset_name, progress=True, workers=None):
+    """``path``, generated from the built-in preset ``preset_name`` first if missing
+    (``workers``: default one process per core)."""
     if not os.path.exists(path):
         print(f"{path} is missing: generating the {preset_name!r} preset (once)",
               file=sys.stderr)
-        generate(preset_name, path, progress=progress)
+        generate(preset_name, path, progress=progress, workers=workers or default_workers())
     return path
+
+
+if __name__ == "__main__":
+    _worker(sys.argv[1])
