@@ -4,6 +4,7 @@ and the shipped weights), each timed as the command a user runs, in a scratch fo
 
     python experiments/main_job_time.py                 # docs/results/main-job/
     taskset -c 1 python experiments/main_job_time.py --name main-job-1core
+    python experiments/main_job_time.py --preset diverse --generate-only --name diverse-2core
 
 The machine's load average before each part is recorded next to its time: a figure
 taken while other jobs ran is an upper bound.
@@ -32,16 +33,19 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--name", default="main-job", help="docs/results/NAME/")
+    p.add_argument("--preset", default="default", help="the data preset to generate")
+    p.add_argument("--generate-only", action="store_true", help="time the data alone")
     args = p.parse_args(argv)
     with tempfile.TemporaryDirectory() as d:
-        data = os.path.join(d, "default.h5")
+        data = os.path.join(d, f"{args.preset}.h5")
         parts = {
-            "generate the `default` data": ["-m", "jtus.data", "generate", "--preset",
-                                            "default", "--out", data, "--quiet"],
-            "`python -m jtus.train` (train 4x, evaluate)": [
-                "-m", "jtus.train", "--dataset", data, "--workdir", os.path.join(d, "run"),
-                "--quiet"],
+            f"generate the `{args.preset}` data": ["-m", "jtus.data", "generate", "--preset",
+                                                   args.preset, "--out", data, "--quiet"],
         }
+        if not args.generate_only:
+            parts["`python -m jtus.train` (train 4x, evaluate)"] = [
+                "-m", "jtus.train", "--dataset", data, "--workdir", os.path.join(d, "run"),
+                "--quiet"]
         rows, data_out = [], {}
         for what, cmd in parts.items():
             seconds, load = timed(cmd, os.path.dirname(os.path.dirname(os.path.abspath(
