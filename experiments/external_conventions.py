@@ -13,7 +13,7 @@ renderer's output, through what ``import-exr`` wrote (jtus's conventions):
 2. jitter: each 1-spp input is closer to the target sampled at the stated jitter
    position than at the LR pixel centre and than at the next frame's jitter.
 
-    python experiments/external/check_conventions.py data/external/*.h5
+    python experiments/external_conventions.py data/external/*.h5
 
 Exits non-zero when a check fails. Prints one line per dataset and writes the table to
 ``docs/results/external-conventions/``.
@@ -86,7 +86,7 @@ def check(path):
 
 def main(paths):
     if not paths:
-        raise SystemExit("usage: check_conventions.py DATASET.h5 [...]")
+        raise SystemExit("usage: external_conventions.py DATASET.h5 [...]")
     results = {os.path.basename(p): check(p) for p in paths}
     rows = [f"| {k} | {m['warp']:.4f} | {m['none']:.4f} | {m['ratio']:.2f} | "
             f"{m['negated']:.4f} | {m['stated']:.4f} | {m['centre']:.4f} | {m['next']:.4f} | "

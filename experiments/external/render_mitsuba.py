@@ -24,7 +24,7 @@ posts, a fast sideways camera, a box crossing in front: disocclusion), ``turntab
 a flickering light). They are held out: never trained on, never used to choose
 anything but the final comparison (docs/data.md).
 
-Run ``check_conventions.py`` beside this file afterwards: it verifies, through the
+Run ``experiments/external_conventions.py`` afterwards: it verifies, through the
 imported datasets, that the vectors warp the previous target onto the current one
 better than no warp and than the negated vectors, and that each input matches the
 target sampled at its stated jitter.
