@@ -42,16 +42,8 @@ from jtus import sampling
 from jtus.data.conventions import FAR, NEAR, linearize_depth
 from jtus.frame import Frame
 from jtus.models import kernels, layers
-from jtus.models.base import (
-    Cost,
-    ExportIO,
-    Model,
-    Spec,
-    bind,
-    carry_dtype,
-    compute_dtype,
-    reset_select,
-)
+from jtus.models.base import (Cost, ExportIO, Model, Spec, bind, carry_dtype, compute_dtype,
+                              reset_select)
 
 FORMULATIONS = ("standard", "opt1", "opt2")
 CONV_BACKWARDS = ("autodiff", "custom")

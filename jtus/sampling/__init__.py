@@ -1,49 +1,14 @@
 """Hand-written sampling primitives: warps, up-sampling, jitter, colour spaces."""
 
-from jtus.sampling.color import (
-                                 display,
-                                 exposure_scale,
-                                 inverse_tonemap,
-                                 rgb_to_ycbcr,
-                                 rgb_to_ycocg,
-                                 tonemap,
-                                 ycbcr_to_rgb,
-                                 ycocg_to_rgb,
-)
-from jtus.sampling.jitter import (
-                                 fsr2,
-                                 halton,
-                                 jitter_sequence,
-                                 thesis_2x2,
-                                 thesis_4x4,
-                                 van_der_corput,
-)
-from jtus.sampling.upsample import (
-                                 dilate_motion,
-                                 jitter_aligned_upsample,
-                                 jitter_cell,
-                                 neighbourhood,
-                                 pad_edge,
-                                 pixel_shuffle,
-                                 pixel_unshuffle,
-                                 reproject_coords,
-                                 upsample,
-                                 zero_upsample,
-)
-from jtus.sampling.warp import (
-                                 CATMULL_ROM_A,
-                                 METHODS,
-                                 PYTORCH_A,
-                                 TAPS,
-                                 WarpPlan,
-                                 grid_sample,
-                                 inside_mask,
-                                 keys_weights,
-                                 pixel_grid,
-                                 sample,
-                                 warp_plan,
-                                 warp_read,
-)
+from jtus.sampling.color import (display, exposure_scale, inverse_tonemap, rgb_to_ycbcr,
+                                 rgb_to_ycocg, tonemap, ycbcr_to_rgb, ycocg_to_rgb)
+from jtus.sampling.jitter import (fsr2, halton, jitter_sequence, thesis_2x2, thesis_4x4,
+                                  van_der_corput)
+from jtus.sampling.upsample import (dilate_motion, jitter_aligned_upsample, jitter_cell,
+                                    neighbourhood, pad_edge, pixel_shuffle, pixel_unshuffle,
+                                    reproject_coords, upsample, zero_upsample)
+from jtus.sampling.warp import (CATMULL_ROM_A, METHODS, PYTORCH_A, TAPS, WarpPlan, grid_sample,
+                                inside_mask, keys_weights, pixel_grid, sample, warp_plan, warp_read)
 
 __all__ = [
     "CATMULL_ROM_A", "dilate_motion", "display", "exposure_scale", "fsr2", "grid_sample",
