@@ -1,6 +1,11 @@
 """Shared test helpers: small synthetic sequences (smooth images, sub-pixel motion,
 jitter from the thesis patterns; not a renderer, just well-conditioned inputs),
-time-step selection, and TBPTT gradients window by window."""
+time-step selection, TBPTT gradients window by window, and experiment scripts loaded
+as modules."""
+
+import importlib.util
+import os
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -116,3 +121,17 @@ def cast_frame(frame, dtype):
     """``frame`` with its colour, depth, motion and jitter in ``dtype``."""
     return frame._replace(**{k: jnp.asarray(getattr(frame, k), dtype)
                              for k in ("color", "depth", "motion", "jitter")})
+
+
+def load_script(name, folder="experiments"):
+    """An experiment script (or a tool) as a module, its folder on ``sys.path`` while
+    it loads, as when it runs as a script."""
+    where = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", folder)
+    sys.path.insert(0, where)
+    try:
+        spec = importlib.util.spec_from_file_location(name, os.path.join(where, f"{name}.py"))
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(where)
+    return module

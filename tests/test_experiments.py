@@ -12,6 +12,7 @@ import pytest
 
 from jtus import loading, recipe, train
 from jtus.config import PRESETS
+from tests import seqdata
 
 
 def test_train_comparison_script_passes_valid_configs():
@@ -43,25 +44,8 @@ def test_train_comparison_script_passes_valid_configs():
                     common + shlex.split(a) + ["--factor", str(f)]).lr
 
 
-def _load_experiment(name, folder="experiments"):
-    """An experiment script (or a tool) as a module (its folder on sys.path while it
-    loads, as when it runs as a script)."""
-    import importlib.util
-    import sys
-
-    exp = os.path.join(os.path.dirname(__file__), "..", folder)
-    sys.path.insert(0, exp)
-    try:
-        spec = importlib.util.spec_from_file_location(name, os.path.join(exp, f"{name}.py"))
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(exp)
-    return module
-
-
 def _load_ablations():
-    return _load_experiment("ablations")
+    return seqdata.load_script("ablations")
 
 
 def test_ablation_studies_build_valid_models():
@@ -118,7 +102,7 @@ def test_ablation_studies_build_valid_models():
 def test_ablation_progress_reads_the_committed_runs(tmp_path, monkeypatch):
     """Before a study's table exists, docs/results.md lists its committed runs: epochs
     done of the config's, the last validation PSNR, collapsed (train.collapsed) or not."""
-    ablations = _load_experiment("common")  # the ablations' run bookkeeping
+    ablations = seqdata.load_script("common")  # the ablations' run bookkeeping
     monkeypatch.setattr(ablations, "ROOT", str(tmp_path))
     assert ablations.runs_so_far("warp") == []
     keys = ("epoch", "step", "train_loss", "grad_norm", "grad_norm_max", "param_norm",
@@ -139,7 +123,7 @@ def test_collapse_probe_reads_committed_runs_over_their_first_epochs(tmp_path):
     """experiments/collapse_probe.py: a committed ablation run joins the table with its
     variant, learning rate and seed from its folder and config, judged collapsed or not
     (train.collapsed) on its first epochs only."""
-    cp = _load_experiment("collapse_probe")
+    cp = seqdata.load_script("collapse_probe")
     keys = ("epoch", "grad_norm", "grad_norm_max", "val_loss", "val_psnr")
     for run, lr, rows in (("without_buffer-s3", 1e-3, [(1, 0.1, 0.2, 0.3, 25.1),
                                                          (2, 0.0, 0.0, 0.3, 25.1),
@@ -162,7 +146,7 @@ def test_runs_are_saved_and_restored(tmp_path):
     """Ablation studies and comparison runs span sessions through committed copies of
     their checkpoints (experiments/saved_runs.py, called by ablations.py and by
     train_comparison.sh as a command: exit 1 when there is nothing to copy)."""
-    saved_runs = _load_experiment("saved_runs")
+    saved_runs = seqdata.load_script("saved_runs")
     src, dst = tmp_path / "run", tmp_path / "saved"
     src.mkdir()
     assert not saved_runs.copy_run(str(src), str(dst))  # no checkpoint: nothing copied
@@ -180,7 +164,7 @@ def test_comparison_table_systems_and_targets():
     """experiments/comparison_table.py: every system is listed at both factors with a
     spec that loads (or none, when it has no training on the diverse data), and the
     targets' margins and verdicts follow their thresholds."""
-    ct = _load_experiment("comparison_table")
+    ct = seqdata.load_script("comparison_table")
     for f in (4, 2):
         rows = ct.systems(f)
         assert [r[0] for r in rows] == ["jau", "tus", "dlctus", *ct.SYSTEMS]
@@ -210,7 +194,7 @@ def test_comparison_table_systems_and_targets():
 def test_readme_figure_takes_the_best_trained_system_on_validation(tmp_path):
     """experiments/readme_figure.py's default comparison column: the trained system with
     the highest validation PSNR, never a baseline, with a clear error when none scored."""
-    rf = _load_experiment("readme_figure")
+    rf = seqdata.load_script("readme_figure")
     d = tmp_path / "docs" / "results" / "comparison-val" / "x4"
     d.mkdir(parents=True)
     scores = {"jau": 25.3, "tus": 25.4, "dlctus-shipped": 28.3, "mlp": 25.0, "nsrr": 27.1,
@@ -226,7 +210,7 @@ def test_readme_figure_takes_the_best_trained_system_on_validation(tmp_path):
 def test_training_summary_takes_the_longer_log(tmp_path):
     """A run's newest log is its longer one (file times mean nothing in a fresh clone);
     on a tie the exported (finished) one; logs of other data are not counted."""
-    ts = _load_experiment("training_summary")
+    ts = seqdata.load_script("training_summary")
 
     def log(rel, epochs, dataset="data/diverse.h5", cfg_name="config.json"):
         d = tmp_path / os.path.dirname(rel)
@@ -263,7 +247,7 @@ def test_comparison_table_only_rescores_the_named_systems(tmp_path, monkeypatch)
     without weights, or an earlier result of other factors, is refused."""
     import sys
 
-    ct = _load_experiment("comparison_table")
+    ct = seqdata.load_script("comparison_table")
     written = []
     monkeypatch.setattr(ct, "write", lambda name, table, data, note="": written.append(
         (table, data, note)))

@@ -4,22 +4,7 @@ import os
 
 import jax
 
-
-def _load_experiment(name, folder="experiments"):
-    """An experiment script (or a tool) as a module (its folder on sys.path while it
-    loads, as when it runs as a script)."""
-    import importlib.util
-    import sys
-
-    exp = os.path.join(os.path.dirname(__file__), "..", folder)
-    sys.path.insert(0, exp)
-    try:
-        spec = importlib.util.spec_from_file_location(name, os.path.join(exp, f"{name}.py"))
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(exp)
-    return module
+from tests import seqdata
 
 
 def test_mutation_script_counts_mutants_and_sets_the_jit_mode(tmp_path, monkeypatch):
@@ -27,7 +12,7 @@ def test_mutation_script_counts_mutants_and_sets_the_jit_mode(tmp_path, monkeypa
     rate, a timeout is not a kill (except a listed mutant that breaks the import); the
     hook it appends to the scratch conftest runs only mutmut's call-recording run op by
     op; results of separate runs merge."""
-    mu = _load_experiment("mutation", "tools")
+    mu = seqdata.load_script("mutation", "tools")
     equivalent = next(iter(mu.EQUIVALENT))
     status = {"m.x_a__mutmut_1": "killed", "m.x_a__mutmut_2": "survived",
               "m.x_a__mutmut_3": "timeout", "m.x_a__mutmut_4": "not checked",
