@@ -7,6 +7,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from jtus.reference.inputs import random_frame
+
 
 class Net(nn.Module):
     def __init__(self, channels=32, blocks=4):
@@ -105,13 +107,7 @@ def infer_workload(config, size):
     """One inference step at HR ``size`` (batch 1, channels-last) as a callable;
     ``config`` is jtus's DLCTUS config (its factor)."""
     factor = config.factor
-    H, W = size
-    h, w = H // factor, W // factor
-    r = np.random.default_rng(0)
-    color = _tensor(r.uniform(size=(1, 3, h, w)))
-    depth = _tensor(r.uniform(0.5, 1.0, size=(1, 1, h, w)))
-    motion = _tensor(r.normal(scale=0.5, size=(1, 2, h, w)))
-    jitter = _tensor(r.uniform(size=(1, 2)))
+    color, depth, motion, jitter = random_frame(factor, size, DEVICE)
     net = Net().to(DEVICE, memory_format=torch.channels_last)
     hist = [init_history(color, jitter, factor)]
 

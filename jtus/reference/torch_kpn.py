@@ -31,6 +31,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from jtus.reference.inputs import random_frame
+
 HIDDEN = 5
 
 
@@ -143,12 +145,8 @@ def infer_workload(config, size):
     weights) as a blocking callable, for ``python -m jtus.bench``; ``config`` is jtus's
     KPN config (its factor and jitter phases)."""
     f = config.factor
-    h, w = size[0] // f, size[1] // f
-    r = np.random.default_rng(0)
-    t = lambda a: torch.from_numpy(np.ascontiguousarray(a, np.float32))  # noqa: E731
-    color, depth = t(r.uniform(size=(1, 3, h, w))), t(r.uniform(0.5, 1.0, size=(1, 1, h, w)))
-    motion, jitter = t(r.normal(scale=0.5, size=(1, 2, h, w))), t(r.uniform(size=(1, 2)))
-    phases = t(np.asarray(config.phases()))
+    color, depth, motion, jitter = random_frame(f, size)
+    phases = torch.from_numpy(np.asarray(config.phases(), np.float32))
     net = KPN(len(phases))
     reset = torch.zeros(1, dtype=torch.bool)
     fb = [None]

@@ -23,10 +23,11 @@ Choices that are jtus's (docs/comparison.md), pinned by the test against jtus:
 - depth is linear in [0, 1] with near 0.1 and far 100.
 """
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
+
+from jtus.reference.inputs import random_frame
 
 FEATURES = 12
 
@@ -131,10 +132,7 @@ def infer_workload(config, size):
     ``python -m jtus.bench``; ``config`` is jtus's NSRR config (its factor)."""
     f = config.factor
     h, w = size[0] // f, size[1] // f
-    r = np.random.default_rng(0)
-    t = lambda a: torch.from_numpy(np.ascontiguousarray(a, np.float32))  # noqa: E731
-    color, depth = t(r.uniform(size=(1, 3, h, w))), t(r.uniform(0.5, 1.0, size=(1, 1, h, w)))
-    motion, jitter = t(r.normal(scale=0.5, size=(1, 2, h, w))), t(r.uniform(size=(1, 2)))
+    color, depth, motion, jitter = random_frame(f, size)
     net = NSRR()
     reset = torch.zeros(1, dtype=torch.bool)
     prev = [[torch.zeros(1, FEATURES, h * f, w * f)] * net.frames]
