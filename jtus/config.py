@@ -73,6 +73,9 @@ class Config:
                 raise ValueError(f"{name}: expected a finite number, got {v!r}")
         if self.lr <= 0:
             raise ValueError(f"lr: expected > 0, got {self.lr}")
+        if (not isinstance(self.seed, int) or isinstance(self.seed, bool)
+                or not 0 <= self.seed < 2 ** 32):
+            raise ValueError(f"seed: expected an integer in [0, 2**32), got {self.seed!r}")
         if not 0 <= self.lr_end <= 1:
             raise ValueError(f"lr_end: expected a fraction of lr in [0, 1], got {self.lr_end}")
         if self.clip_norm < 0 or self.warmup_steps < 0:

@@ -5,7 +5,7 @@
     python -m jtus.evaluate --models tus thesis=thesis_dlctus_x4.pt --json
     python -m jtus.evaluate --models jau tus shipped 'nsrr=runs/nsrr-x{f}/checkpoint.msgpack'
 
-Model specs: a built-in name (``jau``, ``jau-bicubic``, ``tus``, ``tus-clip``),
+Model specs: a built-in name (``jau``, ``jau-bicubic``, ``tus``, ``tus-clip``, ``tus-mean``),
 ``shipped`` (the weights under ``jtus/weights/`` for the factor), or ``LABEL=PATH``
 for a checkpoint written by ``jtus.train`` (``.msgpack``) or a PyTorch DLCTUS
 checkpoint (``.pt``); ``{f}`` in PATH becomes the factor being evaluated, so one spec
@@ -35,10 +35,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from matplotlib.figure import Figure
-from PIL import Image
+from PIL import Image, ImageDraw
 from tqdm import tqdm
 
-from jtus import cli, loading, losses, metrics, rollout
+from jtus import cli, loading, losses, metrics, models, rollout
 from jtus.config import PRESETS
 from jtus.data.dataset import Dataset
 from jtus.data.exr import linear_to_srgb
@@ -176,21 +176,43 @@ def crop_grid(entries, dataset_path, factor, path, split="test", crop=64, rows=3
                 row.append(np.asarray(outs[-1, 0])[y:y + c, x:x + c])
             row.append(tgt[y:y + c, x:x + c])
             tiles.append(np.concatenate(row, 1))
-    img = np.concatenate(tiles, 0)
-    Image.fromarray(np.round(linear_to_srgb(img) * 255).astype(np.uint8)).save(path)
-    return ["input"] + [e.label for e in entries] + ["reference"]
+    labels = ["input"] + [e.label for e in entries] + ["reference"]
+    _labelled_grid(np.concatenate(tiles, 0), labels, path)
+    return labels
+
+
+def _labelled_grid(img, labels, path, tile_px=192, header=18):
+    """Save the crops ``img`` (columns of equal width, linear RGB) enlarged to about
+    ``tile_px`` per crop (nearest, so the pixels stay visible) under a header row
+    naming each column."""
+    width = img.shape[1] // len(labels)
+    k = max(1, tile_px // width)
+    big = np.repeat(np.repeat(img, k, 0), k, 1)
+    pic = Image.new("RGB", (big.shape[1], big.shape[0] + header), "white")
+    pic.paste(Image.fromarray(np.round(linear_to_srgb(big) * 255).astype(np.uint8)),
+              (0, header))
+    draw = ImageDraw.Draw(pic)
+    for i, text in enumerate(labels):
+        draw.text((i * width * k + 4, 3), text, fill="black")
+    pic.save(path)
 
 
 def _parser():
     p = argparse.ArgumentParser(prog="python -m jtus.evaluate", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--dataset", default="data/default.h5")
-    p.add_argument("--split", default="test")
+    p.add_argument("--dataset", default="data/default.h5",
+                   help="an HDF5 dataset; default: %(default)s (generated if missing)")
+    p.add_argument("--split", default="test", help="default: %(default)s")
     p.add_argument("--factor", type=int, nargs="*", help="default: every factor in the data")
-    p.add_argument("--models", nargs="+", default=["jau", "tus", "shipped"])
+    p.add_argument("--models", nargs="+", default=["jau", "tus", "shipped"],
+                   help=f"weight-free models "
+                        f"({', '.join(n for n in models.NAMES if n not in models.TRAINABLE)}), "
+                        f"shipped, or LABEL=PATH (.msgpack, .pt); default: %(default)s")
     p.add_argument("--max-videos", type=int)
     p.add_argument("--videos", help="shell-style pattern of video names, e.g. 'random_*'")
-    p.add_argument("--out", default="runs/eval")
+    p.add_argument("--out", default="runs/eval",
+                   help="folder for results.md/json, per-frame plots and crop grids; "
+                        "default: %(default)s")
     p.add_argument("--no-crops", action="store_true")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--quiet", action="store_true")
@@ -248,6 +270,9 @@ def main(argv=None):
         return 2
     print(json.dumps({str(k): v for k, v in summary.items()}, indent=1) if args.json
           else markdown(summary))
+    if args.out:
+        print(f"wrote results, per-frame plots and crop grids to {args.out}/",
+              file=sys.stderr if args.json else sys.stdout)
     return 0
 
 

@@ -95,30 +95,53 @@ def step_signature(model, params, spec, size):
     return one_step, args
 
 
-def to_onnx(model, params, spec, size, out):
-    """One step as an ONNX model (opset 23) by ``jax2onnx``, written atomically."""
-    try:
-        from jax2onnx import to_onnx as convert  # lazy: optional (the export extra)
-    except ImportError as e:
-        raise ValueError("--format onnx needs jax2onnx: pip install -e \".[export]\"") from e
-    one_step, args = step_signature(model, params, spec, size)
-    inputs, outputs = io_names(spec)
-    proto = convert(one_step, list(args), model_name=f"{spec.name}_step",
-                    input_names=list(inputs), output_names=list(outputs))
+def to_onnx(model, params, spec, size, out, native=True):
+    """One step as an ONNX model, written atomically: the model's own graph of native
+    operators (``ExportIO.onnx_graph``: symbolic batch and size, so ``size`` is not
+    used) where it has one and ``native``; otherwise jtus's step at ``size`` converted
+    by ``jax2onnx`` (opset 23, fixed sizes). Returns ``"native"`` or ``"converted"``."""
+    proto = None
+    if native and spec.export.onnx_graph is not None:
+        try:
+            import onnx  # noqa: F401  lazy: optional (the export extra)
+        except ImportError as e:
+            raise ValueError("--format onnx needs onnx: pip install -e \".[export]\"") from e
+        try:
+            proto = spec.export.onnx_graph(params, model.config)
+        except NotImplementedError as e:
+            print(f"note: {e}; converting jtus's step with jax2onnx at {size[0]}x{size[1]}",
+                  file=sys.stderr)
+    kind = "native" if proto is not None else "converted"
+    if proto is None:
+        try:
+            from jax2onnx import to_onnx as convert  # lazy: optional (the export extra)
+        except ImportError as e:
+            raise ValueError("--format onnx needs jax2onnx: pip install -e \".[export]\"") from e
+        one_step, args = step_signature(model, params, spec, size)
+        inputs, outputs = io_names(spec)
+        proto = convert(one_step, list(args), model_name=f"{spec.name}_step",
+                        input_names=list(inputs), output_names=list(outputs))
     with atomic_path(out) as tmp, open(tmp, "wb") as fh:
         fh.write(proto.SerializeToString())
-    return out
+    return kind
 
 
-def to_stablehlo(model, params, spec, size, out):
-    """One step serialized by ``jax.export`` (StableHLO), written atomically."""
+PLATFORMS = ("cpu", "cuda", "rocm", "tpu")
+
+
+def to_stablehlo(model, params, spec, size, out, platforms=("cpu",)):
+    """One step serialized by ``jax.export`` (StableHLO) for ``platforms`` (one
+    serialized program that runs on each of them), written atomically."""
+    bad = [p for p in platforms if p not in PLATFORMS]
+    if bad or not platforms:
+        raise ValueError(f"--platform: expected some of {PLATFORMS}, got {list(platforms)}")
     one_step, args = step_signature(model, params, spec, size)
     try:
         import flatbuffers  # noqa: F401  lazy: optional, jax.export's serializer needs it
     except ImportError as e:
         raise ValueError("--format stablehlo needs the flatbuffers package: "
                          "pip install -e \".[export]\"") from e
-    exp = export.export(jax.jit(one_step))(*args)
+    exp = export.export(jax.jit(one_step), platforms=tuple(platforms))(*args)
     with atomic_path(out) as tmp, open(tmp, "wb") as fh:
         fh.write(exp.serialize())
     return out
@@ -131,7 +154,15 @@ def main(argv=None):
     p.add_argument("--factor", type=int, required=True, choices=(2, 4))
     p.add_argument("--format", required=True, choices=("torch", "stablehlo", "onnx"))
     p.add_argument("--size", type=int, nargs=2, default=(1080, 1920), metavar=("H", "W"),
-                   help="output size of the exported step (stablehlo, onnx)")
+                   help="output size of the exported step (stablehlo; onnx only where the "
+                        "graph is converted: the native graph takes any size); "
+                        "default: %(default)s")
+    p.add_argument("--platform", nargs="+", default=["cpu"], choices=PLATFORMS,
+                   help="stablehlo: the platforms the program is lowered for; "
+                        "default: %(default)s")
+    p.add_argument("--converted", action="store_true",
+                   help="onnx: convert jtus's step with jax2onnx at --size instead of "
+                        "writing the native-operator graph")
     p.add_argument("--out", required=True)
     p.add_argument("--force", action="store_true", help="replace an existing --out")
     args = p.parse_args(argv)
@@ -142,9 +173,11 @@ def main(argv=None):
         if args.format == "torch":
             to_torch(params, model.config, spec, args.out)
         elif args.format == "onnx":
-            to_onnx(model, params, spec, tuple(args.size), args.out)
+            kind = to_onnx(model, params, spec, tuple(args.size), args.out,
+                           native=not args.converted)
+            print(f"onnx graph: {kind}")
         else:
-            to_stablehlo(model, params, spec, tuple(args.size), args.out)
+            to_stablehlo(model, params, spec, tuple(args.size), args.out, args.platform)
     except (ValueError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

@@ -24,6 +24,7 @@ comparison is ``jtus.evaluate.run``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import dataclasses
 import json
@@ -176,12 +177,6 @@ def _prepare_workdir(config, workdir, resume, overwrite):
                          f"{cfg_path} (only --epochs may change); use a new --workdir")
 
 
-def _clear_old_run(workdir):
-    for name in (checkpoint.CHECKPOINT, checkpoint.METRICS, "metrics.csv", "training.png"):
-        if os.path.exists(os.path.join(workdir, name)):
-            os.remove(os.path.join(workdir, name))
-
-
 class _Run(NamedTuple):
     """What every epoch of a run shares."""
     config: Config
@@ -191,6 +186,7 @@ class _Run(NamedTuple):
     eval_loss: Any      # jitted validation loss of one crop
     mesh: Any           # the data mesh, or None on one device
     accept: Any         # the model's training-crop acceptance hook
+    replacing: bool     # --overwrite of a run: its files stay until the first checkpoint
 
 
 def _start(config, workdir, resume, overwrite, progress):
@@ -209,18 +205,16 @@ def _start(config, workdir, resume, overwrite, progress):
     model, loss_fn, opt = recipe.model_for(config), recipe.loss_for(config), \
         recipe.optimizer_for(config)
     ts = create_train_state(loading.init_params(config), opt)
+    replacing = overwrite and not resume and os.path.exists(
+        os.path.join(workdir, checkpoint.CHECKPOINT))
     if main:
         os.makedirs(workdir, exist_ok=True)
-        if overwrite and not resume:  # the old run goes only once the new one is valid
-            _clear_old_run(workdir)
     start_epoch, history = 0, []
     if resume and os.path.exists(os.path.join(workdir, checkpoint.CHECKPOINT)):
         ts, start_epoch, history = checkpoint.restore_train_state(workdir, ts)
         print(f"resumed {workdir} after epoch {start_epoch}", file=sys.stderr)
-    if main:
-        with atomic_path(os.path.join(workdir, "config.json")) as tmp:
-            with open(tmp, "w") as fh:
-                fh.write(run_config.to_json(config))
+    if main and not replacing:  # a replaced run keeps its files until the new checkpoint
+        _write_config(workdir, config)
     mesh = sharding.data_mesh(config.batch)
     if mesh is not None:  # batch split over the devices, parameters replicated
         ts = sharding.replicate(ts, mesh)
@@ -229,8 +223,15 @@ def _start(config, workdir, resume, overwrite, progress):
                               keep_at=plan.keep_at, remat=config.remat, hoist=config.hoist)
     eval_loss = jax.jit(lambda p, c, f, t: rollout.window_loss(
         model.step, loss_fn, p, c, f, t, loss_frames=plan.loss_frames)[0])
-    run = _Run(config, model, plan, step_fn, eval_loss, mesh, recipe.accept_for(config))
+    run = _Run(config, model, plan, step_fn, eval_loss, mesh, recipe.accept_for(config),
+               replacing)
     return run, ts, start_epoch, history
+
+
+def _write_config(workdir, config):
+    with atomic_path(os.path.join(workdir, "config.json")) as tmp:
+        with open(tmp, "w") as fh:
+            fh.write(run_config.to_json(config))
 
 
 def _train_epoch(run, ts, ds, epoch, progress):
@@ -279,11 +280,19 @@ def _validate(run, params, ds, val_crops):
             "val_ssim": float(np.mean(np.concatenate(ssim))) if ssim else float("nan")}
 
 
-def _record_epoch(workdir, ts, epoch, history):
-    """The epoch's checkpoint, CSV, plot and log line (process 0 alone)."""
+def _record_epoch(run, workdir, ts, epoch, history):
+    """The epoch's checkpoint, CSV, plot and log line (process 0 alone). A run that
+    replaces another (``--overwrite``) swaps it out here, at its first checkpoint: the
+    new checkpoint replaces the old one atomically, then the old run's other files and
+    its config.json go. A kill before this moment leaves the old run whole."""
     rec = history[-1]
     checkpoint.save_train_state(workdir, sharding.to_host(ts) if jax.process_count() > 1
                                 else ts, epoch, history)
+    if run.replacing and len(history) == 1:
+        for name in ("metrics.csv", "training.png"):
+            with contextlib.suppress(FileNotFoundError):
+                os.remove(os.path.join(workdir, name))
+        _write_config(workdir, run.config)
     write_csv(workdir, history)
     plot_history(history, os.path.join(workdir, "training.png"))
     print(f"epoch {epoch}: train {rec['train_loss']:.4f}  val {rec['val_loss']:.4f}  "
@@ -330,7 +339,7 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
                 print(f"warning: {why}: the network may have collapsed (saturated outputs pass "
                       f"no gradient; try a lower --lr, see docs/weights.md)", file=sys.stderr)
             if sharding.is_main():  # the other processes hold the same state and history
-                _record_epoch(workdir, ts, epoch, history)
+                _record_epoch(run, workdir, ts, epoch, history)
             if stop_after is not None and done >= stop_after:
                 break
             if stop_when is not None and stop_when(history):
@@ -450,6 +459,9 @@ def main(argv=None):
             print(f"error: {e}", file=sys.stderr)
             return 2
         print(evaluate.markdown(summary))
+        print(f"wrote the evaluation (results.md, per-frame plots, crop grids) to "
+              f"{os.path.join(workdir, 'eval')}/; training curves in "
+              f"{os.path.join(workdir, 'training.png')}")
     return 0
 
 

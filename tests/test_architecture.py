@@ -124,7 +124,7 @@ LAYERS = (
 )
 # optional heavy dependencies, imported inside the function that needs them; each such
 # import carries a ``lazy:`` comment saying why
-LAZY = ("torch", "jax2onnx", "onnxruntime", "flatbuffers", "imageio", "imageio_ffmpeg",
+LAZY = ("torch", "onnx", "jax2onnx", "onnxruntime", "flatbuffers", "imageio", "imageio_ffmpeg",
         "mitsuba", "jtus.reference")
 
 

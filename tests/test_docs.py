@@ -55,3 +55,20 @@ def test_dated_finder_finds_dates_and_commits(tmp_path):
     p.write_text("ran on 2026-12-01\nthe suite at 5afeb27 took\nsee commit 119b708\n"
                  "a cache of 2026 entries\n")
     assert [b.split(":")[1] for b in _dated([str(p)])] == ["1", "2", "3"]
+
+
+def _python_blocks(text):
+    return re.findall(r"```python\n(.*?)```", text, flags=re.S)
+
+
+def test_integration_guide_code_runs_as_written(capsys):
+    """The Python in docs/integration.md, run as a reader would paste it."""
+    blocks = _python_blocks(_read("docs", "integration.md"))
+    assert blocks, "docs/integration.md has no Python example"
+    for code in blocks:
+        exec(compile(code, "docs/integration.md", "exec"), {"__name__": "__doc_example__"})
+    assert "(1, 360, 640, 3) (1, 360, 640, 4)" in capsys.readouterr().out
+
+
+def test_python_block_finder_finds_blocks():
+    assert _python_blocks("x\n```python\nprint(1)\n```\n```sh\nls\n```") == ["print(1)\n"]

@@ -3,17 +3,20 @@ every model's exposure edge, losses on displayed colour, the simulator's ``hdr``
 effect, datasets that carry exposure, and a moving highlight's ghost trail."""
 
 import dataclasses
+import os
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from PIL import Image
 
-from jtus import loading, losses, models, recipe, rollout, sampling
+from jtus import loading, losses, models, recipe, rollout, sampling, upsample
 from jtus.config import PRESETS
 from jtus.data import dataset
+from jtus.data.exr import linear_to_srgb, read_exr
 from jtus.frame import Frame, validate
-from jtus.sampling import jitter_sequence
+from jtus.sampling import display, jitter_sequence
 from jtus.sim import generate
 from tests import seqdata
 
@@ -195,6 +198,40 @@ def test_training_refuses_hdr_data_for_an_ldr_model(hdr_data, tmp_path):
     recipe.check_data(hdr)
     with pytest.raises(ValueError, match="HDR colour with an exposure"):
         recipe.check_data(dataclasses.replace(hdr, model_overrides=()))
+
+
+def test_upsample_writes_hdr_data_as_png_mp4_and_exr(hdr_data, tmp_path):
+    """HDR input through every output of ``python -m jtus.upsample``: EXR frames keep
+    the radiance (above 1), PNG frames and the MP4 show ``display`` of it (the
+    tone-mapped pre-exposed colour), frame by frame."""
+    with dataset.Dataset(hdr_data) as ds:
+        name = ds.videos("test")[0]
+        frames, _ = ds.video("test", name, 4)
+    base = ["--input", hdr_data, "--video", name, "--factor", "4", "--model", "jau"]
+    assert upsample.main(base + ["--format", "exr", "--out", str(tmp_path / "exr")]) == 0
+    assert upsample.main(base + ["--format", "png", "--out", str(tmp_path / "png"),
+                                 "--mp4", str(tmp_path / "v.mp4")]) == 0
+    exrs = sorted((tmp_path / "exr").glob("*.exr"))
+    pngs = sorted((tmp_path / "png").glob("*.png"))
+    assert len(exrs) == len(pngs) == frames.color.shape[0]
+    assert (tmp_path / "v.mp4").stat().st_size > 0
+    radiance = np.stack([np.stack([read_exr(str(f))[0][c] for c in "RGB"], -1) for f in exrs])
+    assert radiance.max() > 1.0
+    shown = np.asarray(display(jnp.asarray(radiance),
+                               jnp.asarray(frames.exposure[:, 0])))
+    png = np.stack([np.asarray(Image.open(f), np.float64) / 255 for f in pngs])
+    np.testing.assert_allclose(png, linear_to_srgb(shown), atol=0.5 / 255 + 1e-3)
+
+
+def test_upsample_failed_mp4_leaves_no_file_and_no_frames(hdr_data, tmp_path, capsys):
+    """An ``--mp4`` path that cannot take a file is refused before any work; nothing is
+    written."""
+    (tmp_path / "file").write_text("x")
+    for bad in (str(tmp_path / "file" / "v.mp4"), str(tmp_path), str(tmp_path / "v.avi")):
+        assert upsample.main(["--input", hdr_data, "--factor", "4", "--model", "jau",
+                              "--out", str(tmp_path / "f"), "--mp4", bad]) == 2
+        assert "--mp4" in capsys.readouterr().err
+    assert not (tmp_path / "f").exists() and sorted(os.listdir(tmp_path)) == ["file"]
 
 
 def highlight(T=14, h=16, w=40, f=4, value=30.0, bg=0.02, speed=1.0, exposure=1.0):

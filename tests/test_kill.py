@@ -18,7 +18,7 @@ import jax
 import numpy as np
 import pytest
 
-from jtus import checkpoint, recipe, train
+from jtus import checkpoint, loading, recipe, train
 from jtus.config import PRESETS
 from jtus.data import dataset
 from jtus.sim import generate
@@ -210,3 +210,27 @@ def test_upsample_interrupted_leaves_only_whole_frames(tmp_path, k, sig, tiny_da
     assert all(got[f] in (old[f], new[f]) for f in got)
     if sig == signal.SIGTERM:
         assert not _temp_files(out)
+
+
+@pytest.mark.parametrize("k", range(max(2, KILLS)))
+def test_train_overwrite_killed_leaves_the_old_run_whole(tmp_path, k, tiny_data):
+    """``train --overwrite`` over a finished run, SIGKILLed at a seeded moment: until
+    the new run's first checkpoint the old run's files are all there, byte for byte;
+    after it, the new checkpoint is whole (it restores)."""
+    work = tmp_path / "run"
+    base = ["jtus.train", "--preset", "tiny", "--dataset", tiny_data, "--workdir", str(work),
+            "--quiet", "--no-eval", "--epochs", "1"]
+    assert subprocess.run([sys.executable, "-m"] + base, cwd=ROOT,
+                          capture_output=True).returncode == 0
+    old = {f: _digest(work / f) for f in os.listdir(work)}
+    delay = np.random.default_rng([7, k]).uniform(0.0, 15.0)
+    proc = _start(base + ["--overwrite", "--seed", "7", "--epochs", "2"])
+    _signal(proc, signal.SIGKILL, lambda: True, delay)
+    now = {f: _digest(work / f) for f in os.listdir(work) if not f.endswith(".tmp")}
+    if now["checkpoint.msgpack"] == old["checkpoint.msgpack"]:
+        assert now == old
+    else:
+        config = dataclasses.replace(PRESETS["tiny"], dataset=tiny_data)
+        params = loading.init_params(config)
+        checkpoint.restore_train_state(
+            str(work), train.create_train_state(params, recipe.optimizer_for(config)))

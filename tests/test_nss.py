@@ -1,6 +1,7 @@
 """``python -m jtus.data import-nss``: Arm's NSS dataset layout, written here by the test
-(two sequences, HDR colour, UV motion, FSR 2 jitter, reversed Z, a camera cut), read
-back through ``jtus.data.Dataset`` with every convention converted."""
+(two sequences, HDR colour, UV motion, Arm's jitter, reversed Z, a camera cut) and by
+the independent ``tests/nss_fixture.py``, read back through ``jtus.data.Dataset`` with
+every convention converted as Arm's own reader converts it."""
 
 import json
 import os
@@ -8,10 +9,12 @@ import os
 import numpy as np
 import pytest
 
+from jtus import models
 from jtus.data import __main__ as cli
 from jtus.data import conventions, nss
 from jtus.data.dataset import Dataset
 from jtus.data.exr import write_exr
+from tests import nss_fixture
 
 H, W, F, T = 16, 24, 2, 4
 
@@ -30,13 +33,14 @@ def _write_nss(root, rng, names=("0000", "0001"), exposure=True):
             target = rng.uniform(0, 8, (H, W, 3))
             depth = rng.uniform(0.05, 0.95, (h, w))      # reversed Z
             uv = rng.uniform(-0.1, 0.1, (h, w, 2))       # UV-space backward motion
-            jit = rng.uniform(-0.5, 0.5, 2)              # FSR 2 offsets, LR pixels
+            jit = rng.uniform(-0.5, 0.5, 2)              # Arm's offsets, LR pixels
             for sub, chans in ((f"x{F}/color", {"R": color[..., 0], "G": color[..., 1],
                                                 "B": color[..., 2]}),
                                (f"x{F}/depth", {"R": depth}),
                                (f"x{F}/motion", {"R": uv[..., 0], "G": uv[..., 1]}),
                                ("ground_truth", {"R": target[..., 0], "G": target[..., 1],
-                                                 "B": target[..., 2]})):
+                                                 "B": target[..., 2]}),
+                               ("motion_gt", {"R": np.zeros((H, W)), "G": np.zeros((H, W))})):
                 os.makedirs(os.path.join(root, sub, name), exist_ok=True)
                 write_exr(os.path.join(root, sub, name, stem), chans)
             fr = {"Frame": num, "FovX": 1.2, "FovY": 0.8, "CameraNearPlane": 0.1,
@@ -68,7 +72,7 @@ def test_import_nss_converts_every_convention(tmp_path):
     src = _write_nss(str(root), np.random.default_rng(0))
     out = tmp_path / "nss.h5"
     assert cli.main(["import-nss", "--root", str(root), "--factor", str(F), "--out", str(out),
-                     "--quiet"]) == 0
+                     "--quiet", "--linear-truth"]) == 0
     with Dataset(out) as ds:
         assert ds.videos("test") == ["0000", "0001"] and ds.factors == (F,) and ds.hdr
         for name, s in src.items():
@@ -83,24 +87,104 @@ def test_import_nss_converts_every_convention(tmp_path):
                                        rtol=1e-6, atol=1e-6)
             # reversed Z -> device depth 1 - d
             np.testing.assert_allclose(x["depth"][:], 1.0 - s["depth"][..., None], atol=1e-6)
-            # FSR 2 jitter: the sample lies at p + 0.5 - jitter
-            np.testing.assert_allclose(x["jitter"][:], 0.5 - s["jit"], atol=1e-6)
+            # Arm's jitter: the sample lies at p + 0.5 + jitter
+            np.testing.assert_allclose(x["jitter"][:], 0.5 + s["jit"], atol=1e-6)
             np.testing.assert_array_equal(g["reset"][:], [True, False, True, False])
             np.testing.assert_allclose(g["exposure"][:], [0.5, 0.75, 1.0, 1.25])
         frames, targets = ds.video("test", "0001", F)
         assert frames.exposure.shape == (T, 1) and targets.shape == (T, 1, H, W, 3)
 
 
-def test_import_nss_jitter_is_fsr2s():
-    """FSR 2's ComputeHrPosFromLrPos: the sample of LR pixel p at ``p + 0.5 - jitter``."""
+def test_jitter_kinds_fsr2_and_arm_are_mirrored():
+    """FSR 2's ComputeHrPosFromLrPos puts the sample of LR pixel p at ``p + 0.5 -
+    jitter``; Arm's generate_lr_to_hr_lut at ``p + 0.5 + jitter``."""
     j = np.array([[0.25, -0.125]])
     np.testing.assert_allclose(conventions.jitter_to_jtus(j, "fsr2"), [[0.25, 0.625]])
+    np.testing.assert_allclose(conventions.jitter_to_jtus(j, "arm"), [[0.75, 0.375]])
+
+
+def _import_fixture(tmp_path, factor, edit=None):
+    root = str(tmp_path / "nss")
+    used = nss_fixture.write_dataset(root)
+    if edit:
+        _edit_json(root, "0000", edit)
+    out = tmp_path / f"fixture-x{factor}.h5"
+    assert cli.main(["import-nss", "--root", root, "--factor", str(factor), "--out",
+                     str(out), "--quiet", "--force"]) == 0
+    with Dataset(out) as ds:
+        frames, targets = ds.video("test", "0000", factor)
+    return used[factor], frames, np.asarray(targets)
+
+
+def _jau_error(jitter, frames, factor):
+    model = models.build("jau", factor)
+    worst = 0.0
+    for t in range(len(jitter)):
+        fr = jax_frame(frames, t)
+        out, _ = model.step({}, (), fr)
+        worst = max(worst, float(np.abs(np.asarray(out[0]) -
+                                        nss_fixture.jau_reference(factor, jitter[t])).max()))
+    return worst
+
+
+def jax_frame(frames, t):
+    return type(frames)(*(None if x is None else x[t] for x in frames))
+
+
+@pytest.mark.parametrize("factor", nss_fixture.FACTORS)
+def test_import_nss_reproduces_arms_jitter_aligned_frame(tmp_path, factor):
+    """The independent fixture's samples lie at ``p + 0.5 + J`` (Arm's convention);
+    jtus's JAU on the imported frames reproduces the JAU the fixture computes from that
+    convention, to the float16 storage of the colour (values up to 2.2: 2^-11 relative,
+    1.1e-3). The control: the same data with the jitter read mirrored (FSR 2's sign)
+    misses by far more."""
+    jitter, frames, targets = _import_fixture(tmp_path, factor)
+    assert _jau_error(jitter, frames, factor) < 1.5e-3
+    # files are numbered from 1 and paired with Frames by position; the truth is the
+    # fixture's radiance, brought back from its Karis tone map
+    v, u = np.meshgrid((np.arange(nss_fixture.H) + 0.5) / nss_fixture.H,
+                       (np.arange(nss_fixture.W) + 0.5) / nss_fixture.W, indexing="ij")
+    np.testing.assert_allclose(targets[:, 0], np.broadcast_to(
+        nss_fixture.radiance(u, v), targets[:, 0].shape), rtol=3e-3)
+    mirrored = conventions.jitter_to_jtus(-jitter, "arm")  # what an FSR 2 reading stores
+    wrong = frames._replace(jitter=np.asarray(mirrored, np.float32)[:, None])
+    assert _jau_error(jitter, wrong, factor) > 0.05
+
+
+def test_import_nss_follows_arms_reader_on_planes_order_and_truth(tmp_path, capsys):
+    """An infinite far plane becomes 5000 (Arm's reader); ``motion_gt`` is required;
+    a linear truth given as tone-mapped is refused with the option named."""
+    root = str(tmp_path / "nss")
+    nss_fixture.write_dataset(root)
+    out = tmp_path / "a.h5"
+    assert cli.main(["import-nss", "--root", root, "--factor", "2", "--out", str(out),
+                     "--quiet"]) == 0
+    with Dataset(out) as ds:
+        assert ds.group("test", "0000").attrs["far"] == nss.INFINITE_FAR == 5000.0
+    for f in os.listdir(os.path.join(root, "motion_gt", "0000")):
+        os.remove(os.path.join(root, "motion_gt", "0000", f))
+    assert cli.main(["import-nss", "--root", root, "--factor", "2", "--out",
+                     str(tmp_path / "b.h5"), "--quiet"]) == 2
+    assert "motion_gt" in capsys.readouterr().err and not (tmp_path / "b.h5").exists()
 
 
 @pytest.mark.parametrize("break_it,message", [
     (lambda root: os.remove(os.path.join(root, f"x{F}", "depth", "0001", "0012.exr")),
-     "depth image .* is missing"),
-    (lambda root: _edit_json(root, "0000", lambda m: m.pop("ReverseZ")), "missing 'ReverseZ'"),
+     r"x2/depth/0001 holds 3 \.exr files, .* 4"),
+    (lambda root: _edit_json(root, "0000", lambda m: m.update(ReverseZ="yes")),
+     "ReverseZ: expected true or false"),
+    (lambda root: _edit_json(root, "0000", lambda m: m["Frames"][1].update(CameraCut="no")),
+     "CameraCut: expected true or false"),
+    (lambda root: _edit_json(root, "0000", lambda m: m["TargetResolution"].update(X=None)),
+     "TargetResolution.X: expected a finite number, got None"),
+    (lambda root: _edit_json(root, "0000", lambda m: m["Frames"][1].update(
+        CameraNearPlane=None)), r"Frames\[1\].CameraNearPlane: expected a finite number"),
+    (lambda root: _edit_json(root, "0000", lambda m: m.update(
+        UpscalingRatiosIndices=[1])), "UpscalingRatiosIndices: expected dict"),
+    (lambda root: _edit_json(root, "0000", lambda m: m["Frames"][0][
+        "NormalizedPerRatioJitter"][1].pop("X")), r"NormalizedPerRatioJitter\[1\]: missing 'X'"),
+    (lambda root: _edit_json(root, "0000", lambda m: m["Frames"][2].update(Exposure="x")),
+     r"Frames\[2\].Exposure: expected a finite number, got 'x'"),
     (lambda root: _edit_json(root, "0000", lambda m: m["Frames"][1].pop("Exposure")),
      "Exposure on 3 of 4 frames"),
     (lambda root: _edit_json(root, "0000", lambda m: m["Frames"][0].update(
@@ -117,7 +201,7 @@ def test_import_nss_refuses_bad_input_before_writing(tmp_path, capsys, break_it,
     break_it(root)
     out = tmp_path / "bad.h5"
     assert cli.main(["import-nss", "--root", root, "--factor", str(F), "--out", str(out),
-                     "--quiet"]) == 2
+                     "--quiet", "--linear-truth"]) == 2
     import re
     assert re.search(message, capsys.readouterr().err)
     assert not out.exists() and not list(tmp_path.glob("*.h5*"))

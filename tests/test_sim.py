@@ -88,12 +88,7 @@ def test_input_pixel_is_a_single_sample_at_its_jittered_position():
 
 
 def _flops(scene):
-    fn = render.make_renderer(scene, motion=True)
-    state = render.state_arrays(paths.timeline(scene, "train", 0, 1, 1.0)[0])
-    xy = jnp.zeros((1024, 2), jnp.float32)
-    cost = fn.lower(state, xy, 0.01).compile().cost_analysis()
-    cost = cost[0] if isinstance(cost, (list, tuple)) else cost
-    return cost["flops"]
+    return render.flops_per_point(scene, 1024)
 
 
 def _without(scene, effect):

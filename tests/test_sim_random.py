@@ -15,7 +15,7 @@ from jtus.data import dataset
 from jtus.sampling import jitter_sequence
 from jtus.sampling.jitter import VARIETY
 from jtus.sim import __main__ as sim_cli
-from jtus.sim import generate, paths, randomized, render, textures
+from jtus.sim import generate, randomized, render, textures
 from jtus.sim.scene import EFFECTS, KINDS, LDR_EFFECTS, PATHS, TEXTURES
 from jtus.sim.video import VideoRenderer
 
@@ -74,11 +74,7 @@ def test_split_seed_ranges_are_disjoint():
 
 
 def _flops(scene):
-    fn = render.make_renderer(scene, motion=True)
-    state = render.state_arrays(paths.timeline(scene, "train", 0, 1, 1.0)[0])
-    cost = fn.lower(state, jnp.zeros((256, 2), jnp.float32), 0.01).compile().cost_analysis()
-    cost = cost[0] if isinstance(cost, (list, tuple)) else cost
-    return cost["flops"]
+    return render.flops_per_point(scene, 256)
 
 
 @pytest.mark.parametrize("texture", ["fbm", "glyphs"])
@@ -281,3 +277,14 @@ def test_parallel_generation_writes_the_same_file(tmp_path):
     with pytest.raises(ValueError, match="divisible"):
         generate.generate(bad, tmp_path / "bad.h5", progress=False, workers=1)
     assert sorted(os.listdir(tmp_path)) == ["one.h5", "two.h5"]
+
+
+def test_cost_table_has_a_header_and_both_ratios():
+    """``python -m jtus.sim cost``'s table: XLA's FLOPs per point and the wall time,
+    each beside its ratio to the scene with no effect."""
+    rows = [("none", (), 1000.0, 0.4), ("shadows", ("shadows",), 2500.0, 0.9)]
+    lines = sim_cli.cost_table(rows).splitlines()
+    assert lines[0] == ("| effects | FLOP per point (XLA) | x no effect | ms per frame | "
+                        "x no effect |") and lines[1].startswith("| --- |")
+    assert lines[2:] == ["| none | 1,000 | 1.00 | 400 | 1.00 |",
+                         "| shadows | 2,500 | 2.50 | 900 | 2.25 |"]

@@ -122,6 +122,8 @@ def test_a_failed_command_leaves_an_existing_run_alone(tiny_data, tmp_path, caps
     for extra, msg in ((["--factor", "2", "--crop", "64"], "holds a run"),
                        (["--overwrite", "--crop", "64"], "crop: 64 exceeds"),
                        (["--overwrite", "--seq-len", "20"], "shortest train video"),
+                       (["--overwrite", "--seed", "-1"], "seed: expected an integer"),
+                       (["--overwrite", "--seed", "99999999999999999999999"], "seed"),
                        (["--val-videos", "0"], "val_videos"),
                        (["--lr", "nan"], "lr"), (["--epochs", "0"], "epochs"),
                        (["--steps-per-epoch", "0"], "steps_per_epoch"),

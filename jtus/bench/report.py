@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
-NAN = float("nan")
+NONE = "–"  # a cell that does not apply (no network, no reference)
+
+
+def _f(r, key, fmt):
+    """``r[key]`` formatted, or a dash where the record has no such figure."""
+    v = r.get(key)
+    return NONE if v is None or v != v else format(v, fmt)
 
 
 def _peak(report):
@@ -24,10 +30,15 @@ def _infer(report):
         lines.append(
             f"| {r['model']} | {r['size']} | {r['factor']}x | {r['dtype']} | "
             f"{r.get('formulation', '')} | {r.get('kernels', '')} | {r['ms']:.1f} | "
-            f"{r['gflop']:.2f} | {r['gflops']:.1f} | {r.get('network_ms', NAN):.1f} | "
-            f"{r.get('network_gflops', NAN):.1f} | {pct} | {r.get('torch_ms', NAN):.1f} | "
-            f"{r.get('torch_over_jtus', NAN):.2f} |")
-    return lines + [""]
+            f"{r['gflop']:.2f} | {r['gflops']:.1f} | {_f(r, 'network_ms', '.1f')} | "
+            f"{_f(r, 'network_gflops', '.1f')} | {pct or NONE} | {_f(r, 'torch_ms', '.1f')} | "
+            f"{_f(r, 'torch_over_jtus', '.2f')} |")
+    return lines + ["", "The step, the network alone and the PyTorch reference are timed in "
+                    "turn (medians of alternating runs). The network is the step's "
+                    "convolutions jitted on their own: its time is part of the step's, but "
+                    "a separate program can be scheduled differently, so on a busy machine "
+                    "it can come out a little above the step. A dash: the figure does not "
+                    "apply (no network, no PyTorch reference).", ""]
 
 
 def _train(report):
@@ -38,9 +49,9 @@ def _train(report):
         bound = r.get("bound_s_at_conv_peak")
         lines.append(
             f"| {r['model']} | {r['warp']} | {r['s_per_step']:.3f} | {r['frames_per_s']:.1f} | "
-            f"{r.get('torch_s_per_step', NAN):.3f} | {r.get('torch_frames_per_s', NAN):.1f} | "
-            f"{r.get('torch_over_jtus', NAN):.2f} | {r.get('peak_mib', NAN):.0f} | "
-            f"{r['s_per_step'] / bound if bound else NAN:.2f} |")
+            f"{_f(r, 'torch_s_per_step', '.3f')} | {_f(r, 'torch_frames_per_s', '.1f')} | "
+            f"{_f(r, 'torch_over_jtus', '.2f')} | {_f(r, 'peak_mib', '.0f')} | "
+            f"{format(r['s_per_step'] / bound, '.2f') if bound else NONE} |")
     r = report["train"][0]
     scan = "unrolled" if r["unroll"] else "rolled"
     remat = f", remat {r['remat']}" if r["remat"] else ""

@@ -23,7 +23,7 @@ import optax
 from jtus import cost, losses, models, rollout, train
 from jtus.frame import Frame
 from jtus.models import layers
-from jtus.timing import timeit, timeit_pair
+from jtus.timing import timeit, timeit_pair, timeit_round_robin
 
 SIZES = {"720p": (720, 1280), "1080p": (1080, 1920), "4k": (2160, 3840), "256": (256, 256),
          "64": (64, 64)}
@@ -102,21 +102,24 @@ def bench_infer(name, factor, size, repeats, dtype="float32", reference=True, **
     c = cost.cost(name, model.config, H, W)
     ref = torch_reference(name) if reference else None
     against = ref.infer_workload(model.config, size) if ref is not None else None
-    if against is None:
-        seconds = timeit(run, repeats)
-    else:
-        seconds, other = timeit_pair(run, against, repeats)
-    rec = {"model": name, "factor": factor, "size": f"{H}x{W}", "dtype": dtype, **overrides,
-           "ms": seconds * 1e3, "gflop": c.flops / 1e9, "gflops": c.flops / seconds / 1e9,
-           "mbytes": c.bytes / 1e6}
+    fns = {"step": run}
     if against is not None:
-        rec.update(torch_ms=other * 1e3, torch_over_jtus=other / seconds)
+        fns["torch"] = against
     network = models.spec(name).network
     if network is not None:
         fn, args = network(params, state[0], frame, model.config)
         net = jax.jit(fn)
-        ns = timeit(lambda: net(*args).block_until_ready(), repeats)
-        rec.update(network_ms=ns * 1e3, network_gflops=c.network_flops / ns / 1e9)
+        fns["network"] = lambda: net(*args).block_until_ready()
+    t = timeit_round_robin(fns, repeats)  # in turn: the columns see the same machine
+    seconds = t["step"]
+    rec = {"model": name, "factor": factor, "size": f"{H}x{W}", "dtype": dtype, **overrides,
+           "ms": seconds * 1e3, "gflop": c.flops / 1e9, "gflops": c.flops / seconds / 1e9,
+           "mbytes": c.bytes / 1e6}
+    if "torch" in t:
+        rec.update(torch_ms=t["torch"] * 1e3, torch_over_jtus=t["torch"] / seconds)
+    if "network" in t:
+        rec.update(network_ms=t["network"] * 1e3,
+                   network_gflops=c.network_flops / t["network"] / 1e9)
     return rec
 
 

@@ -6,7 +6,7 @@
     python -m jtus.data import-nss --root captures/nss --factor 2 --out data/nss-x2.h5
     python -m jtus.data export --dataset data/default.h5 --split test --video objects_00 \\
         --what target --format png --out out/objects
-    python -m jtus.data info --dataset data/default.h5
+    python -m jtus.data info data/default.h5
 """
 
 from __future__ import annotations
@@ -57,6 +57,9 @@ def _parser():
     s.add_argument("--out", required=True)
     s.add_argument("--split", default="test", choices=dataset.SPLITS)
     s.add_argument("--sequences", help="comma-separated sequence names (default: all)")
+    s.add_argument("--linear-truth", action="store_true",
+                   help="the ground truth EXRs are linear (Arm's --linear_truth); by "
+                        "default they are Karis tone-mapped and brought back to linear")
     s.add_argument("--force", action="store_true", help="replace an existing --out")
     s.add_argument("--quiet", action="store_true")
     e = sub.add_parser("export", help="write a dataset video as EXR or PNG frames")
@@ -69,7 +72,8 @@ def _parser():
     e.add_argument("--force", action="store_true",
                    help="replace the frames of an earlier export in --out")
     n = sub.add_parser("info", help="summarize a dataset")
-    n.add_argument("--dataset", required=True)
+    n.add_argument("path", nargs="?", help="the dataset (or give --dataset)")
+    n.add_argument("--dataset")
     return p
 
 
@@ -109,6 +113,9 @@ def _export(args):
 
 
 def _info(args):
+    if bool(args.path) == bool(args.dataset):
+        raise ValueError("info: give the dataset once, as a path or as --dataset")
+    args.dataset = args.dataset or args.path
     with dataset.Dataset(args.dataset) as ds:
         a = ds.file.attrs
         print(f"{args.dataset}: {a['size'][0]}x{a['size'][1]}, factors {list(ds.factors)}, "
@@ -133,11 +140,13 @@ def main(argv=None):
         elif args.cmd == "import-exr":
             _import(args)
         elif args.cmd == "import-nss":
-
+            if args.factor < 1:
+                raise ValueError(f"--factor: expected a positive integer, got {args.factor}")
             check_out_file(args.out, args.force, kind="an .h5 file")
             names = args.sequences.split(",") if args.sequences else None
             nss.import_nss(args.root, args.factor, args.out, args.split, names,
-                           progress=not args.quiet)
+                           progress=not args.quiet,
+                           truth="linear" if args.linear_truth else "karis")
             print(f"wrote {args.out}")
         elif args.cmd == "export":
             _export(args)

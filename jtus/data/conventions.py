@@ -21,7 +21,7 @@ NEAR, FAR = 0.1, 100.0
 
 MOTION_UNITS = ("pixels", "uv", "ndc")
 DEPTH_KINDS = ("device", "reversed", "linear", "view")
-JITTER_KINDS = ("unit", "centered", "fsr2")
+JITTER_KINDS = ("unit", "centered", "fsr2", "arm")
 
 
 def motion_to_jtus(motion, width, height, units="pixels", y_up=False, negate=False):
@@ -47,9 +47,11 @@ def jitter_to_jtus(jitter, kind="unit", y_up=False):
     """Bring jitter offsets ``[..., 2]`` (in pixels) into [0,1)^2, x right, y down.
 
     ``kind``: ``unit`` (already in [0,1), 0.5 is the centre), ``centered`` (the
-    sample's offset from the pixel centre, in [-0.5, 0.5)) or ``fsr2`` (the offset FSR 2
-    and Arm's NSS are given: the renderer shifts the projection by it, and the sample
-    of pixel p lies at ``p + 0.5 - jitter``, FSR 2's ``ComputeHrPosFromLrPos``).
+    sample's offset from the pixel centre, in [-0.5, 0.5)), ``fsr2`` (the offset FSR 2 is
+    given: the renderer shifts the projection by it, and the sample of pixel p lies at
+    ``p + 0.5 - jitter``, FSR 2's ``ComputeHrPosFromLrPos``) or ``arm`` (Arm's NSS
+    datasets: the sample of pixel p lies at ``p + 0.5 + jitter``, as Arm's
+    ``generate_lr_to_hr_lut`` places it, ``docs/data.md``).
     """
     if kind not in JITTER_KINDS:
         raise ValueError(f"kind: expected one of {JITTER_KINDS}, got {kind!r}")
@@ -58,6 +60,8 @@ def jitter_to_jtus(jitter, kind="unit", y_up=False):
         j = j + 0.5
     elif kind == "fsr2":
         j = 0.5 - j
+    elif kind == "arm":
+        j = 0.5 + j
     if y_up:
         j = j * np.array([1.0, -1.0]) + np.array([0.0, 1.0])
         # y up 0 (the pixel's bottom edge) is y down 1: the same edge, kept inside [0,1)

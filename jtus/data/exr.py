@@ -15,6 +15,8 @@ from __future__ import annotations
 import dataclasses
 import os
 import re
+import shutil
+import tempfile
 
 import h5py
 import numpy as np
@@ -343,27 +345,38 @@ def check_sequence_folder(folder, force=False, prefix="frame", field="--out"):
 
 
 def write_sequence(frames, folder, fmt="exr", prefix="frame", srgb=True):
-    """Write ``[T,H,W,3]`` linear RGB frames as ``folder/{prefix}{t:04d}.{fmt}``, after
-    removing the frames of an earlier sequence there (``check_sequence_folder`` refuses
-    them first unless forced). PNGs are 8-bit, sRGB-encoded unless ``srgb=False``.
-    Returns the paths."""
+    """Write ``[T,H,W,3]`` linear RGB frames as ``folder/{prefix}{t:04d}.{fmt}``,
+    replacing the frames of an earlier sequence there (``check_sequence_folder``
+    refuses them first unless forced) only once every new frame is written: the new
+    frames go to a staging folder beside them and are then renamed over the old ones
+    (each rename atomic), and old frames the new sequence lacks are deleted last.
+    PNGs are 8-bit, sRGB-encoded unless ``srgb=False``. Returns the paths."""
 
     if fmt not in IMAGE_FORMATS:
         raise ValueError(f"fmt: expected one of {IMAGE_FORMATS}, got {fmt!r}")
     frames = np.asarray(frames)
     if frames.ndim != 4 or frames.shape[-1] != 3:
         raise ValueError(f"frames: expected [T,H,W,3], got shape {frames.shape}")
+    if not np.all(np.isfinite(frames)):
+        raise ValueError(f"frames: {int(np.sum(~np.isfinite(frames)))} values are NaN or "
+                         "infinite; nothing written")
     os.makedirs(folder, exist_ok=True)
-    for old in sequence_files(folder, prefix):
-        os.remove(os.path.join(folder, old))
-    paths = []
-    for t, img in enumerate(frames):
-        path = os.path.join(folder, f"{prefix}{t:04d}.{fmt}")
-        with atomic_path(path) as tmp:  # each frame whole or absent
+    stage = tempfile.mkdtemp(prefix=".staging-", dir=folder)
+    try:
+        for t, img in enumerate(frames):
+            path = os.path.join(stage, f"{prefix}{t:04d}.{fmt}")
             if fmt == "exr":
-                write_exr(tmp, {c: img[..., i] for i, c in enumerate("RGB")})
+                write_exr(path, {c: img[..., i] for i, c in enumerate("RGB")})
             else:
                 v = linear_to_srgb(img) if srgb else np.clip(img, 0, 1)
-                Image.fromarray(np.round(v * 255).astype(np.uint8)).save(tmp, format="PNG")
-        paths.append(path)
+                Image.fromarray(np.round(v * 255).astype(np.uint8)).save(path, format="PNG")
+        old = sequence_files(folder, prefix)
+        paths = []
+        for f in sorted(os.listdir(stage)):  # each rename replaces one frame whole
+            os.replace(os.path.join(stage, f), os.path.join(folder, f))
+            paths.append(os.path.join(folder, f))
+        for f in set(old) - {os.path.basename(p) for p in paths}:
+            os.remove(os.path.join(folder, f))
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
     return paths

@@ -1,25 +1,31 @@
-"""Arm's neural super sampling (NSS) dataset layout into jtus's HDF5 format.
+"""Arm's neural super sampling (NSS) dataset layout into jtus's HDF5 format, read as
+Arm's own reader reads it (``docs/data.md``, "NSS", cites each point to its file).
 
 The layout (``docs/nss/nss_dataset_specification.md`` in arm/neural-graphics-model-gym):
-one JSON per sequence at the root (``0000.json``: ``Version``, ``TargetResolution``,
-``ReverseZ``, optional ``UpscalingRatiosIndices`` and a ``Frames`` list with ``Frame``,
-``CameraNearPlane``, ``CameraFarPlane``, ``Jitter`` in pixels, ``NormalizedPerRatioJitter``,
-optional ``Exposure``), ground truth ``ground_truth/<seq>/<frame>.exr`` (linear HDR) and
-per ratio ``x<ratio>/{color,depth,motion}/<seq>/<frame>.exr``.
+one JSON per sequence at the root (``0000.json``: ``TargetResolution``, optional
+``ReverseZ``, ``UpscalingRatiosIndices`` and a ``Frames`` list with
+``CameraNearPlane``, ``CameraFarPlane``, ``NormalizedPerRatioJitter``, optional
+``Exposure`` and ``CameraCut``), ground truth ``ground_truth/<seq>/*.exr``, full-resolution
+motion ``motion_gt/<seq>/*.exr`` and per ratio ``x<ratio>/{color,depth,motion}/<seq>/*.exr``.
 
-Conversions (``docs/conventions.md``): motion is UV-space backward motion, y down (FSR
-2's: the previous position is the current one plus the vector), scaled to LR pixels;
-jitter is FSR 2's (the sample of pixel p lies at ``p + 0.5 - jitter``); depth is device
-depth, reversed when ``ReverseZ``; an infinite far plane (``-1``) is stored as
-``INFINITE_FAR``. The specification has no camera cuts: a frame's optional
-``CameraCut`` (true) starts a new history there (a jtus extension), as does frame 0.
-A sequence with ``Exposure`` on every frame is HDR (its exposure stored per frame).
+As Arm's reader (``scripts/safetensors_generator/dataset_readers/nss_exr_dataset_reader.py``):
+each folder's EXR files are taken in sorted order and paired with ``Frames`` by
+position (file names are not read), as many frames as the shortest folder holds; the
+ground truth is stored Karis tone-mapped and is brought back to linear
+(``truth="karis"``, Arm's default; ``truth="linear"`` is its ``--linear_truth``); the
+jitter places the sample of LR pixel p at ``p + 0.5 + jitter`` (``conventions.jitter_to_jtus``
+kind ``arm``); an infinite far plane (``-1``) becomes 5000; ``motion_gt`` must be there
+and is checked (size, finite values) but not stored: jtus's format carries LR motion.
+Motion is UV-space backward motion, y down, scaled to LR pixels; depth is device
+depth, reversed when ``ReverseZ``. Frame 0 and every ``CameraCut`` (true) start a
+new history. A sequence with ``Exposure`` on every frame is HDR.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import pathlib
 
 import h5py
 import numpy as np
@@ -29,7 +35,9 @@ from jtus.data import conventions, dataset
 from jtus.data.exr import check_values, read_exr
 from jtus.files import atomic_path
 
-INFINITE_FAR = 1e5   # metres; what an infinite far plane (CameraFarPlane -1) becomes
+INFINITE_FAR = 5000.0  # what an infinite far plane (CameraFarPlane -1) becomes, as in Arm's reader
+TRUTHS = ("karis", "linear")  # how the ground truth EXRs are stored
+HDR_MAX = 65504.0  # Arm's clamp of the tone-mapped truth before its inverse
 
 
 def sequences(root):
@@ -53,6 +61,16 @@ def _need(d, key, where, kind=None):
     return v
 
 
+def _number(d, key, where, default=None):
+    """A finite JSON number (not a bool, string or null) at ``d[key]``."""
+    if default is not None and key not in d:
+        return default
+    v = _need(d, key, where)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+        raise ValueError(f"{where}.{key}: expected a finite number, got {v!r}")
+    return float(v)
+
+
 def _channels(path, options, what):
     """The first of ``options`` (tuples of channel names) the file has, stacked."""
     ch, _ = read_exr(path)
@@ -63,75 +81,123 @@ def _channels(path, options, what):
                      f"file has {sorted(ch)}")
 
 
+FOLDERS = ("color", "depth", "motion", "motion_gt", "target")
+
+
+def _files(root, name, factor):
+    """Each folder's EXR files of one sequence, sorted as Arm's reader sorts them
+    (``sorted(Path.rglob("*.exr"))``)."""
+    dirs = {k: os.path.join(root, f"x{factor}", k, name) for k in ("color", "depth", "motion")}
+    dirs["motion_gt"] = os.path.join(root, "motion_gt", name)
+    dirs["target"] = os.path.join(root, "ground_truth", name)
+    out = {}
+    for k, d in dirs.items():
+        files = sorted(p for p in pathlib.Path(d).rglob("*.exr") if p.is_file()) \
+            if os.path.isdir(d) else []
+        if not files:
+            raise ValueError(f"{d}: missing or holds no .exr files (the NSS layout needs "
+                             f"{k} frames there)")
+        out[k] = [str(p) for p in files]
+    return out
+
+
 def _read_meta(root, name, factor):
-    """``(where, meta, frames, reverse_z, (H, W), jitter index, LR folder)`` of one
-    sequence's JSON, checked."""
+    """``(where, frames, reverse_z, (H, W), jitter index)`` of one sequence's JSON,
+    checked."""
     where = os.path.join(root, f"{name}.json")
     try:
-        with open(where) as fh:
+        with open(where, encoding="utf-8") as fh:
             meta = json.load(fh)
+    except UnicodeDecodeError as e:
+        raise ValueError(f"{where}: not UTF-8 text ({e})") from e
     except json.JSONDecodeError as e:
         raise ValueError(f"{where}: not valid JSON ({e})") from e
+    if not isinstance(meta, dict):
+        raise ValueError(f"{where}: expected a JSON object, got {type(meta).__name__}")
     frames = _need(meta, "Frames", where, list)
     if not frames:
         raise ValueError(f"{where}: Frames is empty")
-    reverse_z = _need(meta, "ReverseZ", where, bool)
+    reverse_z = meta.get("ReverseZ", False)  # Arm's reader: metadata.get("ReverseZ", False)
+    if not isinstance(reverse_z, bool):
+        raise ValueError(f"{where}.ReverseZ: expected true or false, got {reverse_z!r}")
     res = _need(meta, "TargetResolution", where, dict)
-    W, H = int(_need(res, "X", f"{where}.TargetResolution")), int(
-        _need(res, "Y", f"{where}.TargetResolution"))
+    W, H = (_number(res, k, f"{where}.TargetResolution") for k in ("X", "Y"))
+    if W != int(W) or H != int(H) or W < 1 or H < 1:
+        raise ValueError(f"{where}.TargetResolution: expected positive integers, got {W}x{H}")
+    W, H = int(W), int(H)
     if W % factor or H % factor:
         raise ValueError(f"{where}: TargetResolution {W}x{H} is not a multiple of "
                          f"factor {factor}")
-    index = meta.get("UpscalingRatiosIndices", {}).get(f"x{factor}_index")
-    lr = os.path.join(root, f"x{factor}")
-    if not os.path.isdir(lr):
+    if not os.path.isdir(os.path.join(root, f"x{factor}")):
         raise ValueError(f"--factor: {root} has no x{factor}/ folder (ratios: "
                          f"{sorted(d for d in os.listdir(root) if d.startswith('x'))})")
-    return where, frames, reverse_z, (H, W), index, lr
+    ratios = _need(meta, "UpscalingRatiosIndices", where, dict)
+    index = _need(ratios, f"x{factor}_index", f"{where}.UpscalingRatiosIndices", int)
+    planes = {k: meta[k] for k in ("NearPlane", "FarPlane") if k in meta}
+    return where, frames, reverse_z, (H, W), index, planes
 
 
-def _frame_camera(fr, fw, index, lr_size, factor):
-    """``(near, far, jitter in LR pixels, FSR 2's convention)`` of one frame's entry."""
-    near = float(_need(fr, "CameraNearPlane", fw))
-    far = float(_need(fr, "CameraFarPlane", fw))
+def _frame_camera(fr, fw, index, lr_size, planes):
+    """``(near, far, jitter in LR pixels, Arm's sign)`` of one frame's entry; the
+    sequence's ``NearPlane`` / ``FarPlane`` stand in for missing per-frame planes, as in
+    Arm's reader."""
+    if not isinstance(fr, dict):
+        raise ValueError(f"{fw}: expected a JSON object, got {fr!r}")
+    fr = dict(fr)
+    for key, seq in (("CameraNearPlane", "NearPlane"), ("CameraFarPlane", "FarPlane")):
+        if fr.get(key) is None and planes.get(seq) is not None:
+            fr[key] = planes[seq]
+    near, far = _number(fr, "CameraNearPlane", fw), _number(fr, "CameraFarPlane", fw)
     far = INFINITE_FAR if far == -1.0 else far
     if not 0 < near < far:
         raise ValueError(f"{fw}: expected 0 < CameraNearPlane < CameraFarPlane, got "
                          f"{near}, {far}")
+    key = ("NormalizedPerRatioJitter" if "NormalizedPerRatioJitter" in fr
+           else "QuantisedPerRatioJitter")
+    nj = _need(fr, key if key in fr else "NormalizedPerRatioJitter", fw, list)
+    if not 0 <= index < len(nj):
+        raise ValueError(f"{fw}.{key}: no entry {index} (UpscalingRatiosIndices)")
+    e = nj[index]
+    ew = f"{fw}.{key}[{index}]"
+    if not isinstance(e, dict):
+        raise ValueError(f"{ew}: expected an object with X and Y, got {e!r}")
     h, w = lr_size
-    if index is not None:
-        nj = _need(fr, "NormalizedPerRatioJitter", fw, list)
-        if not 0 <= index < len(nj):
-            raise ValueError(f"{fw}.NormalizedPerRatioJitter: no entry {index} "
-                             f"(x{factor}_index)")
-        e = nj[index]
-        j = (np.array([e["X"], e["Y"]], float) if isinstance(e, dict)
-             else np.asarray(e, float)) * [w, h]
-    else:
-        e = _need(fr, "Jitter", fw, dict)
-        j = np.array([_need(e, "X", f"{fw}.Jitter"), _need(e, "Y", f"{fw}.Jitter")], float)
-    return near, far, j
+    return near, far, np.array([_number(e, "X", ew) * w, _number(e, "Y", ew) * h])
 
 
-def _frame_images(files, fw, factor, lr_size, hr_size, reverse_z, near, far):
+def _karis_inverse(x):
+    """Arm's ``tonemap_inverse(x, mode="karis")``: ``x / (1 - max(r, g, b))`` after
+    clamping into ``[0, karis(HDR_MAX)]``."""
+    x = np.clip(x, 0.0, HDR_MAX / (1.0 + HDR_MAX))
+    return x / (1.0 - x.max(-1, keepdims=True))
+
+
+def _frame_images(files, fw, lr_size, hr_size, reverse_z, near, far, truth):
     """``(colour, device depth, motion in jtus's convention, target)`` of one frame,
-    each image's size and values checked."""
-    for k, path in files.items():
-        if not os.path.exists(path):
-            raise ValueError(f"{fw}: {k} image {path} is missing")
+    each image's size and values checked (``motion_gt`` too)."""
     color = _channels(files["color"], [("R", "G", "B")], "color")
     target = _channels(files["target"], [("R", "G", "B")], "ground truth")
     depth = _channels(files["depth"], [("R",), ("Y",), ("Z",), ("D",)], "depth")
     motion = _channels(files["motion"], [("R", "G"), ("X", "Y"), ("U", "V")], "motion")
+    motion_gt = _channels(files["motion_gt"], [("R", "G"), ("X", "Y"), ("U", "V")],
+                          "motion_gt")
     for k, v, shape in (("color", color, lr_size), ("depth", depth, lr_size),
-                        ("motion", motion, lr_size), ("target", target, hr_size)):
+                        ("motion", motion, lr_size), ("target", target, hr_size),
+                        ("motion_gt", motion_gt, hr_size)):
         if v.shape[:2] != shape:
             raise ValueError(f"{files[k]}: size {v.shape[0]}x{v.shape[1]}, expected "
-                             f"{shape[0]}x{shape[1]} (TargetResolution / {factor})")
+                             f"{shape[0]}x{shape[1]} ({fw})")
     check_values(files["color"], "color", color, lo=0.0)
     check_values(files["target"], "ground truth", target, lo=0.0)
     check_values(files["depth"], "depth", depth, lo=0.0)
     check_values(files["motion"], "motion", motion)
+    check_values(files["motion_gt"], "motion_gt", motion_gt)
+    if truth == "karis":
+        if target.max() >= 1.0:
+            raise ValueError(f"{files['target']}: ground truth reaches {target.max():.4g}, "
+                             "but a Karis tone-mapped truth lies in [0, 1); if it is linear, "
+                             "pass --linear-truth")
+        target = _karis_inverse(target)
     depth = conventions.depth_to_device(depth, "reversed" if reverse_z else "device",
                                         near, far)
     if depth.max() > 1.0:
@@ -140,34 +206,58 @@ def _frame_images(files, fw, factor, lr_size, hr_size, reverse_z, near, far):
     return color, depth, conventions.motion_to_jtus(motion, w, h, "uv"), target
 
 
-def load_sequence(root, name, factor):
+def _camera_cut(fr, fw):
+    cut = fr.get("CameraCut", False)
+    if not isinstance(cut, bool):
+        raise ValueError(f"{fw}.CameraCut: expected true or false, got {cut!r}")
+    return cut
+
+
+def load_sequence(root, name, factor, truth="karis"):
     """One NSS sequence as a ``jtus.sim.video`` dict at ``factor`` (plus ``near``,
     ``far``), every value checked and converted before anything is written."""
-    where, frames, reverse_z, (H, W), index, lr = _read_meta(root, name, factor)
+    if truth not in TRUTHS:
+        raise ValueError(f"truth: expected one of {TRUTHS}, got {truth!r}")
+    where, frames, reverse_z, (H, W), index, planes = _read_meta(root, name, factor)
+    files = _files(root, name, factor)
+    n = min(len(v) for v in files.values())
+    for k, v in files.items():
+        if len(v) != n or len(v) != len(files["target"]):
+            counts = ", ".join(f"{os.path.dirname(p[0])} holds {len(p)} .exr files"
+                               for p in files.values())
+            raise ValueError(f"{where}: the frame folders differ ({counts}); Arm's reader "
+                             "would pair files by position and drop the extra ones, which "
+                             "shifts frames silently: give every folder the same frames")
+    if len(frames) < n:
+        raise ValueError(f"{where}: Frames lists {len(frames)} frames, the image folders hold "
+                         f"{n} (Arm's reader pairs them by position)")
     h, w = H // factor, W // factor
     cols = {k: [] for k in ("color", "depth", "motion", "target")}
-    jit, exposure, reset, planes = [], [], [], []
-    for t, fr in enumerate(frames):
+    jit, exposure, reset, planes_t = [], [], [], []
+    for t in range(n):
         fw = f"{where}: Frames[{t}]"
-        stem = f"{int(_need(fr, 'Frame', fw)):04d}.exr"
-        near, far, j = _frame_camera(fr, fw, index, (h, w), factor)
-        planes.append((near, far))
+        near, far, j = _frame_camera(frames[t], fw, index, (h, w), planes)
+        planes_t.append((near, far))
         jit.append(j)
-        exposure.append(fr.get("Exposure"))
-        reset.append(t == 0 or bool(fr.get("CameraCut", False)))
-        files = {k: os.path.join(lr, k, name, stem) for k in ("color", "depth", "motion")}
-        files["target"] = os.path.join(root, "ground_truth", name, stem)
+        exposure.append(None if "Exposure" not in frames[t]
+                        else _number(frames[t], "Exposure", fw))
+        reset.append(t == 0 or _camera_cut(frames[t], fw))
         for k, v in zip(("color", "depth", "motion", "target"), _frame_images(
-                files, fw, factor, (h, w), (H, W), reverse_z, near, far)):
+                {k: files[k][t] for k in FOLDERS}, fw, (h, w), (H, W), reverse_z, near,
+                far, truth)):
             cols[k].append(v)
+    return _assemble(where, cols, jit, exposure, reset, planes_t, factor)
+
+
+def _assemble(where, cols, jit, exposure, reset, planes, factor):
     given = [e is not None for e in exposure]
     if any(given) and not all(given):
         raise ValueError(f"{where}: Exposure on {sum(given)} of {len(given)} frames; give it on "
                          "every frame or none")
-    jitter = conventions.jitter_to_jtus(np.stack(jit), "fsr2")
+    jitter = conventions.jitter_to_jtus(np.stack(jit), "arm")
     if not np.all(np.isfinite(jitter) & (jitter >= 0) & (jitter < 1)):
-        raise ValueError(f"{where}: jitter outside the pixel after conversion (FSR 2 "
-                         f"offsets in [-0.5, 0.5) expected; min {np.nanmin(jitter):.4g}, "
+        raise ValueError(f"{where}: jitter outside the pixel after conversion (offsets in "
+                         f"[-0.5, 0.5) expected; min {np.nanmin(jitter):.4g}, "
                          f"max {np.nanmax(jitter):.4g})")
     out = {"reset": np.array(reset), "target": np.stack(cols["target"]).astype(np.float32),
            f"x{factor}": {k: np.stack(cols[k]).astype(np.float32)
@@ -176,13 +266,13 @@ def load_sequence(root, name, factor):
     out[f"x{factor}"]["jitter"] = jitter.astype(np.float32)
     if all(given):
         e = np.asarray(exposure, float)
-        if not np.all(np.isfinite(e) & (e > 0)):
-            raise ValueError(f"{where}: Exposure must be finite and > 0, got min {e.min():.4g}")
+        if not np.all(e > 0):
+            raise ValueError(f"{where}: Exposure must be > 0, got min {e.min():.4g}")
         out["exposure"] = e.astype(np.float32)
     return out
 
 
-def import_nss(root, factor, out, split="test", names=None, progress=True):
+def import_nss(root, factor, out, split="test", names=None, progress=True, truth="karis"):
     """Every sequence (or ``names``) of the NSS dataset at ``root`` into one jtus HDF5
     dataset ``out`` (split ``split``, videos named after the sequences), atomically:
     all sequences are read and checked before the file is written."""
@@ -190,7 +280,7 @@ def import_nss(root, factor, out, split="test", names=None, progress=True):
     if split not in dataset.SPLITS:
         raise ValueError(f"--split: expected one of {dataset.SPLITS}, got {split!r}")
     names = sequences(root) if names is None else list(names)
-    videos = [load_sequence(root, n, factor)
+    videos = [load_sequence(root, n, factor, truth)
               for n in tqdm(names, desc=f"read {root}", disable=not progress)]
     sizes = {v["target"].shape[1:3] for v in videos}
     if len(sizes) > 1:

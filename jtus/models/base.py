@@ -114,6 +114,10 @@ class ExportIO(NamedTuple):
     shapes: Callable[[Any, int, int], tuple]       # (config, H, W) -> their shapes
     to_arrays: Callable[[Any], tuple]              # state -> arrays
     from_arrays: Callable[..., Any]                # *arrays -> state
+    # (params, config) -> onnx.ModelProto of the step in the runtime's native operators,
+    # symbolic in batch and size; NotImplementedError where the config needs one ONNX
+    # lacks (``jtus.export`` then converts the JAX step with jax2onnx)
+    onnx_graph: Optional[Callable] = None
 
 
 class Spec(NamedTuple):

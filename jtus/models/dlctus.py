@@ -41,7 +41,7 @@ import numpy as np
 from jtus import sampling
 from jtus.data.conventions import FAR, NEAR, linearize_depth
 from jtus.frame import Frame
-from jtus.models import kernels, layers
+from jtus.models import dlctus_onnx, kernels, layers
 from jtus.models.base import (Cost, ExportIO, Model, Spec, bind, carry_dtype, compute_dtype,
                               reset_select)
 
@@ -391,7 +391,8 @@ def load_torch_checkpoint(path, config: Config = Config()):
 
 
 EXPORT = ExportIO(names=("history",), shapes=lambda config, H, W: ((1, H, W, 4),),
-                  to_arrays=lambda state: (state.history,), from_arrays=State)
+                  to_arrays=lambda state: (state.history,), from_arrays=State,
+                  onnx_graph=dlctus_onnx.build)
 
 SPECS = (Spec("dlctus", make, lambda f: Config(factor=f), cost, trainable=True,
               dtypes=("float32", "bfloat16", "float16"), formulations=FORMULATIONS, kernels=KERNELS,

@@ -27,6 +27,7 @@ import time
 
 import numpy as np
 from PIL import Image
+from tqdm import tqdm
 
 from jtus import cli, timing
 from jtus.data.conventions import linearize_depth
@@ -34,7 +35,7 @@ from jtus.data.dataset import SPLITS
 from jtus.data.exr import linear_to_srgb
 from jtus.files import atomic_path, check_out_file
 from jtus.sampling.jitter import VARIETY, jitter_sequence
-from jtus.sim import SCENES, from_json, get_scene, random_scene, to_json
+from jtus.sim import SCENES, from_json, get_scene, random_scene, render, to_json
 from jtus.sim.generate import Preset, default_workers, generate, preset
 from jtus.sim.scene import EFFECTS, Scene
 from jtus.sim.video import VideoRenderer
@@ -213,37 +214,49 @@ def _dispatch(args):
 
 
 def effect_costs(seed=3, size=192, frames=4, factors=(2, 4), spp=16):
-    """Seconds per frame (inputs at every factor and the target) of random scene
-    ``seed`` with no effect, each effect alone, and all of them; warm (compiling
-    excluded). Returns a list of ``(label, effects, seconds per frame)``."""
+    """Per row (no effect, each effect alone, all of them) of random scene ``seed``:
+    ``(label, effects, FLOPs per screen point, seconds per frame)``, the FLOPs XLA's
+    count for the compiled renderer (``render.flops_per_point``), the seconds warm
+    (compiling excluded) for the inputs at every factor and the target."""
 
     base = random_scene(seed, effects=EFFECTS)
     rows = [("none", ())] + [(e, (e,)) for e in EFFECTS] + [("all", EFFECTS)]
     out = []
-    for label, effects in rows:
-        r = VideoRenderer(dataclasses.replace(base, effects=effects), (size, size), factors, spp)
+    for label, effects in tqdm(rows, desc="effects", leave=False):
+        scene = dataclasses.replace(base, effects=effects)
+        r = VideoRenderer(scene, (size, size), factors, spp)
         r.video("train", 0, 1)  # compile
         t0 = time.perf_counter()
         r.video("train", 0, frames)
-        out.append((label, effects, (time.perf_counter() - t0) / frames))
+        out.append((label, effects, render.flops_per_point(scene),
+                    (time.perf_counter() - t0) / frames))
     return out
+
+
+def cost_table(rows):
+    """The Markdown table of ``effect_costs`` rows, with a header row."""
+    flops0, sec0 = rows[0][2], rows[0][3]
+    lines = ["| effects | FLOP per point (XLA) | x no effect | ms per frame | x no effect |",
+             "| --- | --- | --- | --- | --- |"]
+    lines += [f"| {label} | {fl:,.0f} | {fl / flops0:.2f} | {sec * 1e3:.0f} | "
+              f"{sec / sec0:.2f} |" for label, _, fl, sec in rows]
+    return "\n".join(lines)
 
 
 def _cost(args):
     machine = timing.hardware_line()
     rows = effect_costs(args.seed, args.size, args.frames)
-    base = rows[0][2]
     print(f"random_{args.seed}, {args.size}x{args.size}, inputs at 2x and 4x + 16-spp target, "
           f"{args.frames} frames ({machine})")
-    print("| effects | ms / frame | x no effect |\n| --- | --- | --- |")
-    for label, _, sec in rows:
-        print(f"| {label} | {sec * 1e3:.0f} | {sec / base:.2f} |")
+    print(cost_table(rows))
     if args.out:
         with atomic_path(args.out) as tmp, open(tmp, "w") as fh:
             json.dump({"seed": args.seed, "size": args.size, "frames": args.frames,
                        "machine": machine,
-                       "rows": [{"effects": label, "ms_per_frame": sec * 1e3}
-                                for label, _, sec in rows]}, fh, indent=1)
+                       "rows": [{"effects": label, "flops_per_point": fl,
+                                 "ms_per_frame": sec * 1e3}
+                                for label, _, fl, sec in rows]}, fh, indent=1)
+        print(f"wrote {args.out}")
     return 0
 
 

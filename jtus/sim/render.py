@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jtus.sim import textures
-from jtus.sim.paths import FrameState
+from jtus.sim.paths import FrameState, timeline
 from jtus.sim.scene import TEXTURES, Scene
 
 _EPS = 1e-4
@@ -308,3 +308,15 @@ def pixel_angle(camera_tan_half_y, height_hr, spp_match=1):
     """Texture footprint per sample: one HR pixel's angle over sqrt(spp_match); the
     input's mip bias of eq. 47 and the target's level both reduce to this."""
     return 2.0 * float(camera_tan_half_y) / height_hr / np.sqrt(spp_match)
+
+
+def flops_per_point(scene: Scene, points=256):
+    """The FLOPs XLA counts (``cost_analysis``) for rendering one screen point of
+    ``scene`` with its declared effects: the compiled renderer over ``points`` points,
+    divided by their number. Unlike a wall time it does not move with the machine's
+    load, so it shows that an undeclared effect costs nothing."""
+    fn = make_renderer(scene, motion=True)
+    state = state_arrays(timeline(scene, "train", 0, 1, 1.0)[0])
+    cost = fn.lower(state, jnp.zeros((points, 2), jnp.float32), 0.01).compile().cost_analysis()
+    cost = cost[0] if isinstance(cost, (list, tuple)) else cost
+    return float(cost["flops"]) / points
