@@ -90,12 +90,41 @@ def gain(model, params, h, w, factor, kind, eps=1e-5):
     return float(jnp.abs(a.history - b.history).max()) / eps
 
 
-def run(sess, model, params, factor, frames, h, w, kind):
-    """Largest ``|onnx - jtus|`` of the frame and the history, and median times."""
+def _torch_stepper(params, factor):
+    """The independent PyTorch DLCTUS (``jtus.reference.torch_dlctus``) with these
+    weights: ``step(feed, history NHWC) -> history NHWC``, exposure applied as jtus's
+    edge applies it (pre-exposed colour, history in that space)."""
+    import torch  # the test extra: an independent reference only
+
+    from jtus.reference import torch_dlctus
+
+    net = torch_dlctus.Net()
+    net.load_state_dict(dlctus.params_to_torch(params))
+    net.eval()
+
+    def step(feed, hist):
+        t = {k: torch.from_numpy(np.ascontiguousarray(feed[k].transpose(0, 3, 1, 2)))
+             for k in ("color", "depth", "motion")}
+        e = float(feed["exposure"][0])
+        with torch.no_grad():
+            _, out = torch_dlctus.step(
+                net, torch.from_numpy(hist.transpose(0, 3, 1, 2).copy()), t["color"] * e,
+                t["depth"], t["motion"], torch.from_numpy(feed["jitter"]), factor,
+                reset=torch.from_numpy(feed["reset"]))
+        return out.numpy().transpose(0, 2, 3, 1)
+
+    return step
+
+
+def run(sess, model, params, factor, frames, h, w, kind, torch_too=True):
+    """Largest ``|onnx - jtus|`` of the frame and the history, the same for the PyTorch
+    reference's history (``torch_too``), and median times."""
     step = jax.jit(model.step)
+    torch_step = _torch_stepper(params, factor) if torch_too else None
     hist = np.zeros((1, h, w, 4), np.float32)
+    hist_torch = hist
     state = dlctus.State(jnp.asarray(hist))
-    worst_frame = worst_hist = 0.0
+    worst_frame = worst_hist = worst_torch = 0.0
     t_onnx, t_jtus = [], []
     for feed in feeds(frames, h, w, factor, kind):
         t0 = time.perf_counter()
@@ -108,11 +137,18 @@ def run(sess, model, params, factor, frames, h, w, kind):
         t_jtus.append(t2 - t1)
         worst_frame = max(worst_frame, float(np.abs(got - np.asarray(want)).max()))
         worst_hist = max(worst_hist, float(np.abs(hist - np.asarray(state.history)).max()))
+        if torch_step is not None:
+            hist_torch = torch_step(feed, hist_torch)
+            worst_torch = max(worst_torch,
+                              float(np.abs(hist_torch - np.asarray(state.history)).max()))
     ms = {"onnx_ms": 1e3 * statistics.median(t_onnx[1:]),
           "jtus_ms": 1e3 * statistics.median(t_jtus[1:])}
-    return {"factor": factor, "frames": frames, "size": [h, w], "input": kind,
-            "max_abs_frame": worst_frame, "max_abs_history": worst_hist, **ms,
-            "ratio": ms["onnx_ms"] / ms["jtus_ms"]}
+    out = {"factor": factor, "frames": frames, "size": [h, w], "input": kind,
+           "max_abs_frame": worst_frame, "max_abs_history": worst_hist, **ms,
+           "ratio": ms["onnx_ms"] / ms["jtus_ms"]}
+    if torch_step is not None:
+        out["torch_max_abs_history"] = worst_torch
+    return out
 
 
 def parity(factor, frames, sizes, kinds, weights="shipped"):
@@ -208,10 +244,12 @@ def main(argv=None):
     sizes = list(zip(args.sizes[::2], args.sizes[1::2]))
     rows = [r for f in args.factors for r in parity(f, args.frames, sizes, args.inputs)]
     table = ("| factor | output | input | max abs diff, frame | max abs diff, history | "
-             "gain | onnxruntime ms | jtus ms | ratio |\n"
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |\n" + "\n".join(
+             "PyTorch reference: max abs diff, history | gain | onnxruntime ms | jtus ms | "
+             "ratio |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n" +
+             "\n".join(
                  f"| {r['factor']}x | {r['size'][0]}x{r['size'][1]} | {r['input']} | "
-                 f"{r['max_abs_frame']:.2g} | {r['max_abs_history']:.2g} | {r['gain']:.1f} | "
+                 f"{r['max_abs_frame']:.2g} | {r['max_abs_history']:.2g} | "
+                 f"{r.get('torch_max_abs_history', float('nan')):.2g} | {r['gain']:.1f} | "
                  f"{r['onnx_ms']:.1f} | {r['jtus_ms']:.1f} | {r['ratio']:.2f} |"
                  for r in rows))
     write("onnx-parity", table, rows, note=(
@@ -219,7 +257,11 @@ def main(argv=None):
         f"--format onnx` (the native-operator graph, symbolic sizes) and run by "
         f"onnxruntime's CPU provider at every size, fed its own history over "
         f"{args.frames} frames with cuts at frames 0 and 15 and exposure rising from 0.8 "
-        f"by 0.02 a frame; jtus's step in float32 on the same inputs. `gain`: the largest "
+        f"by 0.02 a frame; jtus's step in float32 on the same inputs. The PyTorch column: "
+        f"the independent PyTorch DLCTUS (`jtus.reference.torch_dlctus`: torch's "
+        f"grid_sample, interpolate and Conv2d) with the same weights against jtus on the "
+        f"same video, both fed their own history: how far two correct float32 "
+        f"implementations drift apart. `gain`: the largest "
         f"change of jtus's history after one step per unit change of the history it "
         f"reads (+-1e-5, random signs). Times are medians of alternating runs."))
 

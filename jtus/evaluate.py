@@ -230,8 +230,7 @@ def run(specs, dataset, factors=None, out=None, split="test", max_videos=None, v
     with Dataset(dataset) as ds:
         factors = list(factors or ds.factors)
     if out:
-        check_out_folder(out)
-        os.makedirs(out, exist_ok=True)
+        check_out_folder(out)  # created only once there is something to write
     summary, legends, names = {}, {}, []
     for f in factors:
         entries = loading.load_all(specs, f)
@@ -239,11 +238,17 @@ def run(specs, dataset, factors=None, out=None, split="test", max_videos=None, v
                                     videos=videos)
         summary[f] = summarize(per_frame)
         if out:
+            os.makedirs(out, exist_ok=True)
             plot_per_frame(per_frame, os.path.join(out, f"per_frame_x{f}.png"), f)
             if crops:
                 legends[f] = crop_grid(entries, dataset, f, os.path.join(out, f"crops_x{f}.png"),
                                        split)
     if out:
+        written = {f"per_frame_x{f}.png" for f in factors} | {f"crops_x{f}.png" for f in legends}
+        for name in os.listdir(out):  # an earlier run's plots this run did not remake
+            if fnmatch.fnmatch(name, "per_frame_x*.png") or fnmatch.fnmatch(name, "crops_x*.png"):
+                if name not in written:
+                    os.remove(os.path.join(out, name))
         cmd = command or f"jtus.evaluate.run({list(specs)!r}, {dataset!r}, {factors!r})"
         with open(os.path.join(out, "results.md"), "w") as fh:
             fh.write(f"{markdown(summary)}\n\nCommand: `{cmd}`  \nSplit `{split}` of "

@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 import pytest
+from PIL import Image
 
 from jtus import evaluate, models, recipe, rollout, train
 from jtus.config import PRESETS
@@ -197,7 +198,10 @@ def test_trains_with_decreasing_loss_and_evaluates(tiny_data, tmp_path, name, lo
     assert evaluate.main(["--dataset", tiny_data, "--factor", "4", "--models", "jau",
                           f"{name}={tmp_path / 'checkpoint.msgpack'}", "--out", str(out),
                           "--quiet"]) == 0
-    assert (out / "crops_x4.png").exists()
+    grid = np.asarray(Image.open(out / "crops_x4.png").convert("L"))
+    # 4 columns (input, jau, the model, reference) enlarged to about 192 px each, under
+    # a white header that carries their names in dark text
+    assert grid.shape[1] >= 4 * 190 and (grid[:18] < 128).any() and grid[0, 0] == 255
     summary = json.loads((out / "results.json").read_text())
     assert np.isfinite(summary["4"][name]["psnr"])
 

@@ -225,14 +225,20 @@ def test_exr_import_refuses_bad_values_and_frame_numbering(tmp_path, capsys):
         exr.write_exr(d / frame, chans)
         return d
 
-    for name, value, msg in (("R", np.nan, "color has"), ("vec.u", np.inf, "motion has"),
+    for name, value, msg in (("R", np.nan, "color (linear, stored as float16) has"),
+                             ("R", 1e6, "color (linear, stored as float16) has values above "
+                                        "65504"),
+                             ("G", -0.5, "color (linear, stored as float16) has values below 0"),
+                             ("vec.u", np.inf, "motion has"),
                              ("depth.V", -1.0, "depth (view) has values below 0"),
                              ("depth.V", np.nan, "depth (view) has")):
         rc, err = run(lr_dir=with_channel(name, value))
         assert rc == 2 and msg in err and "f001.exr" in err, (name, err)
         assert not out.exists()
     rc, err = run(hr_dir=with_channel("G", np.nan, folder=hr))
-    assert rc == 2 and "target has 256 NaN" in err
+    assert rc == 2 and "target (linear, stored as float16) has 256 NaN" in err
+    rc, err = run(hr_dir=with_channel("B", -1.0, folder=hr))
+    assert rc == 2 and "target (linear, stored as float16) has values below 0" in err
     for jit, msg in (("[1.2, 0.3]", "jitter: expected values in [0, 1)"),
                      ("[NaN, 0.3]", "NaN")):
         bad = tmp_path / "jit.json"
@@ -359,3 +365,51 @@ def test_exr_import_every_convention_flag(tmp_path, variant):
     np.testing.assert_allclose(x["motion"], motion, rtol=0, atol=4e-7)
     np.testing.assert_allclose(x["depth"][..., 0], device, rtol=0, atol=1e-7)
     np.testing.assert_allclose(x["jitter"], jitter, rtol=0, atol=1e-7)  # float32: 3.8e-9 measured
+
+
+@pytest.mark.parametrize("field,value,message", [
+    ("target", np.nan, "target has 1 values NaN or infinite (first in frame 2)"),
+    ("x4/color", np.inf, "color has 1 values NaN or infinite (first in frame 2)"),
+    ("x4/jitter", 5.0, "jitter has 1 values outside [0, 1) or not finite (first in frame 2)"),
+])
+def test_stored_arrays_are_checked_where_they_are_read(tiny_data, tmp_path, capsys, field,
+                                                       value, message):
+    """A dataset damaged after it was written (one bad value) is refused by every reader:
+    evaluation and the crops training draws, naming the video, field and frame."""
+    import shutil
+
+    import h5py
+
+    from jtus import evaluate
+
+    bad = tmp_path / "bad.h5"
+    shutil.copy(tiny_data, bad)
+    with h5py.File(bad, "a") as fh:
+        name = sorted(fh["test"])[0]
+        d = fh[f"test/{name}/{field}"]
+        a = d[:]
+        a[(2,) + (0,) * (a.ndim - 1)] = value
+        d[...] = a
+    assert evaluate.main(["--dataset", str(bad), "--models", "jau", "--factor", "4",
+                          "--out", str(tmp_path / "e"), "--quiet", "--json"]) == 2
+    err = capsys.readouterr().err
+    assert f"test/{name}" in err and message in err, err
+    assert not (tmp_path / "e").exists()  # a refused evaluation creates nothing
+    with h5py.File(bad, "a") as fh:  # now the whole field, so that any crop of it is bad
+        d = fh[f"test/{name}/{field}"]
+        d[...] = np.full(d.shape, value, d.dtype)
+    with dataset.Dataset(bad) as ds, pytest.raises(ValueError, match=field.split("/")[-1]):
+        for seed in range(50):  # until a crop of that video is drawn
+            ds.crops("test", 4, 2, 4, 16, np.random.default_rng(seed))
+
+
+def test_writers_refuse_non_finite_videos(tmp_path):
+    """No dataset is written with NaN in it: the writer checks every array first."""
+    import h5py
+
+    video = sim.render_video(sim.get_scene("objects"), "test", 0, 2, size=(16, 16),
+                             factors=(4,), spp=1)
+    video["x4"]["motion"][1, 0, 0, 0] = np.nan
+    with h5py.File(tmp_path / "v.h5", "w") as fh, pytest.raises(
+            ValueError, match=r"x4/motion has 1 NaN.*first in frame 1"):
+        dataset.write_video(fh.create_group("test/v"), video, (4,), 1)

@@ -31,6 +31,8 @@ import numpy as np
 from jtus.frame import Frame
 
 FORMAT = "jtus-dataset"
+# colours are stored as float16: larger values would be stored as inf
+COLOR_MAX = float(np.finfo(np.float16).max)  # 65504
 VERSION = 1
 SPLITS = ("train", "val", "test")
 CONVENTIONS = {
@@ -50,8 +52,32 @@ def _chunks(shape, t=8, s=64):
     return (min(t, shape[0]),) + tuple(min(s, n) for n in shape[1:3]) + tuple(shape[3:])
 
 
+def check_video(name, video, factors):
+    """``ValueError`` naming the video, field and first frame when a video about to be
+    stored holds a NaN or infinite value or a colour past float16 (``COLOR_MAX``): every
+    writer (generation, ``sim render``, the imports) calls it, so no dataset is written
+    that a reader would have to refuse."""
+    fields = [("target", video["target"], True)]
+    if video.get("exposure") is not None:
+        fields.append(("exposure", np.asarray(video["exposure"]), False))
+    for f in factors:
+        v = video[f"x{f}"]
+        fields += [(f"x{f}/{k}", v[k], k == "color") for k in ("color", "depth", "motion",
+                                                                 "jitter")]
+    for field, a, colour in fields:
+        a = np.asarray(a, np.float64)
+        bad = ~np.isfinite(a) | (np.abs(a) > COLOR_MAX if colour else False)
+        if bad.any():
+            t = int(np.argwhere(bad)[0][0])
+            raise ValueError(f"{name}: {field} has {int(bad.sum())} NaN, infinite or "
+                             f"float16-overflowing values (first in frame {t}); nothing "
+                             "written")
+
+
 def write_video(group, video, factors, spp_match):
-    """Write one rendered video dict (``jtus.sim.video``'s layout) into ``group``."""
+    """Write one rendered video dict (``jtus.sim.video``'s layout) into ``group``,
+    checked first (``check_video``)."""
+    check_video(group.name, video, factors)
     tgt = video["target"]
     group.create_dataset("target", data=tgt.astype(np.float16), chunks=_chunks(tgt.shape))
     group.create_dataset("reset", data=video["reset"].astype(bool))
@@ -141,7 +167,9 @@ class Dataset:
         frame = Frame(x["color"][:].astype(np.float32)[:, None], x["depth"][:][:, None],
                       x["motion"][:][:, None], x["jitter"][:][:, None], reset[:, None],
                       None if e is None else e[:, None])
-        return frame, g["target"][:].astype(np.float32)[:, None]
+        target = g["target"][:].astype(np.float32)[:, None]
+        _check_read(f"{self.path}: {split}/{name}", frame, target)
+        return frame, target
 
     def _exposure(self, g, ts):
         """``[T]`` exposure of frames ``ts`` of video group ``g``, None in LDR datasets."""
@@ -204,4 +232,25 @@ class Dataset:
         st = {k: np.stack(v, 1) for k, v in cols.items()}
         frame = Frame(st["color"], st["depth"], st["motion"], st["jitter"], st["reset"],
                       exposure)
+        _check_read(f"{self.path}: {split} crops of {sorted({i[0] for i in index})}", frame,
+                    st["target"])
         return (frame, st["target"], index) if return_index else (frame, st["target"])
+
+
+def _check_read(where, frame, target):
+    """``ValueError`` naming the video and the first bad frame when what was read holds
+    NaN or infinite values, or a jitter outside [0, 1): a file written by another tool
+    (or damaged) is refused where it is read, before any model runs on it."""
+    arrays = {"color": frame.color, "depth": frame.depth, "motion": frame.motion,
+              "jitter": frame.jitter, "target": target}
+    if frame.exposure is not None:
+        arrays["exposure"] = frame.exposure
+    for field, a in arrays.items():
+        bad = ~np.isfinite(a)
+        if field == "jitter":
+            bad |= (a < 0) | (a >= 1)
+        if bad.any():
+            t = int(np.argwhere(bad)[0][0])
+            what = "outside [0, 1) or not finite" if field == "jitter" else "NaN or infinite"
+            raise ValueError(f"{where}: {field} has {int(bad.sum())} values {what} (first "
+                             f"in frame {t})")

@@ -218,7 +218,8 @@ def _read_input(fin, spec: ImportSpec):
     ch, _ = read_exr(fin)
     color = _pick(ch, spec.color, fin, "color")
     h, w = color.shape[:2]
-    check_values(fin, "color", color)
+    check_values(fin, "color (linear, stored as float16)", color, lo=0.0,
+                 hi=dataset.COLOR_MAX)
     depth = _pick(ch, (spec.depth,), fin, "depth")
     check_values(fin, f"depth ({spec.depth_kind})", depth, lo=0.0,
                  hi=1.0 if spec.depth_kind in ("device", "reversed", "linear") else None)
@@ -238,7 +239,8 @@ def _read_input(fin, spec: ImportSpec):
 def _read_target(ftg, spec: ImportSpec, lr_size, factor):
     tch, _ = read_exr(ftg)
     target = _pick(tch, spec.target_color, ftg, "target")
-    check_values(ftg, "target", target)
+    check_values(ftg, "target (linear, stored as float16)", target, lo=0.0,
+                 hi=dataset.COLOR_MAX)
     h, w = lr_size
     if target.shape[:2] != (h * factor, w * factor):
         raise ValueError(f"{ftg}: target size {target.shape[0]}x{target.shape[1]} is "

@@ -187,7 +187,8 @@ def _frame_images(files, fw, lr_size, hr_size, reverse_z, near, far, truth):
         if v.shape[:2] != shape:
             raise ValueError(f"{files[k]}: size {v.shape[0]}x{v.shape[1]}, expected "
                              f"{shape[0]}x{shape[1]} ({fw})")
-    check_values(files["color"], "color", color, lo=0.0)
+    check_values(files["color"], "color (stored as float16)", color, lo=0.0,
+                 hi=dataset.COLOR_MAX)
     check_values(files["target"], "ground truth", target, lo=0.0)
     check_values(files["depth"], "depth", depth, lo=0.0)
     check_values(files["motion"], "motion", motion)
@@ -198,6 +199,8 @@ def _frame_images(files, fw, lr_size, hr_size, reverse_z, near, far, truth):
                              "but a Karis tone-mapped truth lies in [0, 1); if it is linear, "
                              "pass --linear-truth")
         target = _karis_inverse(target)
+    check_values(files["target"], "ground truth (linear, stored as float16)", target,
+                 hi=dataset.COLOR_MAX)
     depth = conventions.depth_to_device(depth, "reversed" if reverse_z else "device",
                                         near, far)
     if depth.max() > 1.0:

@@ -154,9 +154,16 @@ def _prepare(g, config, f):
         color = g("Div", color, g("Add", mx, g.const(1.0)))
     depth = g("Transpose", "depth", perm=_NCHW)
     near, far = config.near, config.far
-    # linearize_depth: (near * far / (far - d * (far - near)) - near) / (far - near)
-    z = g("Div", g.const(near * far), g("Sub", g.const(far), g("Mul", depth, g.const(far - near))))
-    lin = g("Div", g("Sub", z, g.const(near)), g.const(far - near))
+    # linearize_depth: (near * far / (far - d * (far - near)) - near) / (far - near), as
+    # XLA:CPU evaluates jtus's: the denominator with one rounding (a fused multiply-add;
+    # here in float64, then rounded), the last division as a product with the rounded
+    # reciprocal. Near the far plane the map magnifies rounding ~1000x, so two
+    # roundings of the denominator already move the network's input by 4e-5.
+    c64 = [np.float64(np.float32(v)) for v in (far, far - near)]
+    den = g("Cast", g("Sub", g.const(c64[0], np.float64),
+                      g("Mul", g("Cast", depth, to=11), g.const(c64[1], np.float64))), to=1)
+    z = g("Div", g.const(near * far), den)
+    lin = g("Mul", g("Add", z, g.const(-near)), g.const(np.float32(1.0 / (far - near))))
     lr = g("Concat", color, lin, axis=1)                           # [B,4,h,w]
     ones = g("ConstantOfShape", g("Concat", g("Shape", color, start=0, end=1),
                                   g.const([1], np.int64), g("Shape", color, start=2),
