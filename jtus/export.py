@@ -76,6 +76,8 @@ def step_signature(model, params, spec, size):
 
     f = model.config.factor
     H, W = size
+    if not (4 <= H <= 16384 and 4 <= W <= 16384):
+        raise ValueError(f"--size: expected H and W in [4, 16384], got {H}x{W}")
     if H % 4 or W % 4 or H % f or W % f:
         raise ValueError(f"--size: {H}x{W} must be a multiple of 4 and of factor {f}")
     h, w = H // f, W // f

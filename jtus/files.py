@@ -11,6 +11,7 @@ import contextlib
 import dataclasses
 import json
 import os
+import shutil
 import tempfile
 
 
@@ -83,3 +84,36 @@ def check_out_folder(path, field="--out"):
         raise ValueError(f"{field}: {path} is a file; expected a folder")
     if not os.path.exists(path):
         _writable_parent(path, field)
+
+
+def available_memory():
+    """Bytes of memory this machine has free now (``MemAvailable``), or None."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
+
+
+def check_budget(memory, disk, out, force=False, what="this command"):
+    """Refuse, before any work, a command whose ``memory`` (bytes held at once) or
+    ``disk`` (bytes written under ``out``'s folder) exceeds what the machine has, unless
+    ``force``. ``ValueError`` saying how much is needed and how much there is."""
+    if force:
+        return
+    gib = 2.0 ** 30
+    free_mem = available_memory()
+    if free_mem is not None and memory > free_mem:
+        raise ValueError(f"{what} needs about {memory / gib:.1f} GiB of memory, and "
+                         f"{free_mem / gib:.1f} GiB are free; use smaller sizes or fewer "
+                         f"frames, or pass --force to try anyway")
+    folder = os.path.dirname(os.path.abspath(out))
+    while not os.path.exists(folder):
+        folder = os.path.dirname(folder)
+    free_disk = shutil.disk_usage(folder).free
+    if disk > free_disk:
+        raise ValueError(f"{what} writes about {disk / gib:.1f} GiB, and {folder} has "
+                         f"{free_disk / gib:.1f} GiB free; pass --force to try anyway")

@@ -103,8 +103,13 @@ def load(spec_text, factor) -> Entry | None:
     if "=" in spec_text:
         label, path = spec_text.split("=", 1)
         path = path.replace("{f}", str(factor))
+        if not label:
+            raise ValueError(f"model: {spec_text!r} has an empty label; expected LABEL=PATH")
         if not os.path.exists(path):
             raise FileNotFoundError(f"{label}: {path} does not exist")
+        if not os.path.isfile(path):
+            raise ValueError(f"{label}: {path} is a folder; expected a checkpoint file "
+                             "(.msgpack or .pt)")
         if path.endswith(".pt"):
             return _load_torch(label, path, factor)
         model, params, config = load_checkpoint(path)

@@ -183,3 +183,51 @@ def test_remat_and_hoist_reach_the_config():
     assert train.config_from_argv(["--preset", "tiny", "--hoist"]).hoist is True
     with pytest.raises(ValueError, match="remat"):
         config.Config(remat="sometimes")
+
+
+def test_sizes_past_what_the_code_or_machine_can_hold(tmp_path, capsys, monkeypatch):
+    """Sizes beyond the documented bounds, and work past the free memory or disk, are
+    refused before anything is allocated or written; ``--force`` is the way past the
+    budget."""
+    from jtus import export, files
+    from jtus.sim import __main__ as sim_cli
+
+    out = tmp_path / "x.h5"
+    _refused(capsys, sim_cli.main, ["render", "--random", "3", "--size", "1000000",
+                                    "--out", str(out)], "--size", "16384")
+    _refused(capsys, sim_cli.main, ["render", "--random", "3", "--size", "8192", "--frames",
+                                    "1000", "--videos", "100", "--out", str(out)],
+             "GiB of memory", "--force")
+    monkeypatch.setattr(files, "available_memory", lambda: 2 ** 40)
+    monkeypatch.setattr(files.shutil, "disk_usage", lambda p: type("U", (), {"free": 1000}))
+    _refused(capsys, sim_cli.main, ["render", "--random", "3", "--size", "64", "--frames",
+                                    "2", "--out", str(out)], "writes about", "GiB free")
+    for size in (["-32", "32"], ["0", "0"]):
+        _refused(capsys, export.main, ["--factor", "4", "--format", "stablehlo", "--size",
+                                       *size, "--out", str(tmp_path / "s")], "--size")
+    assert sorted(os.listdir(tmp_path)) == []
+
+
+def test_model_specs_that_name_no_checkpoint(tiny_data, tmp_path, capsys):
+    (tmp_path / "folder.pt").mkdir()
+    base = ["--dataset", tiny_data, "--factor", "4", "--quiet", "--out", str(tmp_path / "e")]
+    _refused(capsys, evaluate.main, base + ["--models", f"m={tmp_path / 'folder.pt'}"],
+             "is a folder")
+    _refused(capsys, evaluate.main, base + ["--models", f"={tmp_path / 'folder.pt'}"],
+             "empty label")
+    assert not (tmp_path / "e").exists()
+
+
+def test_a_video_missing_an_array_is_named(tiny_data, tmp_path, capsys):
+    import shutil
+
+    import h5py
+
+    bad = tmp_path / "bad.h5"
+    shutil.copy(tiny_data, bad)
+    with h5py.File(bad, "a") as fh:
+        name = sorted(fh["test"])[0]
+        del fh[f"test/{name}/x4/motion"]
+    _refused(capsys, evaluate.main, ["--dataset", str(bad), "--factor", "4", "--models",
+                                     "jau", "--quiet", "--out", str(tmp_path / "e")],
+             f"test/{name} lacks ['x4/motion']")

@@ -1,5 +1,6 @@
 """DLCTUS in JAX against the independent PyTorch forward (jtus/reference/torch_dlctus.py)."""
 
+import re
 
 import jax
 import jax.numpy as jnp
@@ -200,6 +201,14 @@ def test_load_checkpoint_refuses_code_and_bad_content(tmp_path, capsys):
     sd["down.0.weight"] = torch.zeros(32, 7, 4, 4)
     with pytest.raises(ValueError, match=r"down.0.weight.*\(32, 8, 4, 4\)"):
         dlctus.params_from_torch(sd)
+    for key, value, message in (
+            ("cnn2.0.weight", torch.full((32, 32, 3, 3), float("nan")), "1 NaN|9216 NaN"),
+            ("cnn1.0.bias", torch.tensor([float("inf")] + [0.0] * 31), "1 NaN or infinite"),
+            ("cnn3.2.bias", torch.zeros(32, dtype=torch.int64), "floating-point weights")):
+        sd = torch_dlctus.Net().state_dict()
+        sd[key] = value
+        with pytest.raises(ValueError, match=rf"{re.escape(key)}.*({message})"):
+            dlctus.load_torch_checkpoint(_save(sd, tmp_path, "bad.pt"))
 
 
 @pytest.mark.parametrize("factor", [4, 2])

@@ -288,3 +288,39 @@ def test_cost_table_has_a_header_and_both_ratios():
                         "x no effect |") and lines[1].startswith("| --- |")
     assert lines[2:] == ["| none | 1,000 | 1.00 | 400 | 1.00 |",
                          "| shadows | 2,500 | 2.50 | 900 | 2.25 |"]
+
+
+@pytest.mark.parametrize("edit,message", [
+    (lambda d: d["path"].update(fov_y=0), "path.fov_y: expected radians"),
+    (lambda d: d["path"].update(fov_y=float("nan")), "path.fov_y: expected a finite number"),
+    (lambda d: d["path"].update(radius="6"), "path.radius: expected a finite number, got '6'"),
+    (lambda d: d["path"].update(center=[float("inf"), 0, 0]), "path.center: expected a list of 3"),
+    (lambda d: d.update(objects=None), "objects: expected a list, got None"),
+    (lambda d: d.update(objects=[]), "objects: expected at least one object"),
+    (lambda d: d["objects"][0]["material"].update(color=[1, 2]), "material.color: expected a list"),
+    (lambda d: d["objects"][0].update(position=[float("nan"), 0, 0]), "position: expected"),
+    (lambda d: d["light"].update(vector=[0, 0, 0]), "light.vector: a directional light"),
+    (lambda d: d["objects"][-1].update(size=[0, 0, 0]), "size: a "),
+])
+def test_scene_json_that_makes_no_picture_is_refused(tmp_path, capsys, edit, message):
+    """Each field of a user's scene JSON is checked on load (types, finiteness, lengths,
+    values that make a picture): one error line naming the file and field, exit 2,
+    nothing written."""
+    d = json.loads(sim.to_json(sim.random_scene(7)))
+    edit(d)
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps(d))
+    out = tmp_path / "s.h5"
+    assert sim_cli.main(["render", "--scene", str(path), "--out", str(out), "--size", "32",
+                         "--frames", "2"]) == 2
+    err = capsys.readouterr().err
+    assert str(path) in err and message in err, err
+    assert sorted(os.listdir(tmp_path)) == ["s.json"]
+
+
+def test_every_built_in_and_randomized_scene_passes_its_own_schema():
+    for name in sim.SCENES:
+        assert sim.from_json(sim.to_json(sim.get_scene(name))) == sim.get_scene(name)
+    for seed in range(50):
+        sc = sim.random_scene(seed, effects=EFFECTS)
+        assert sim.from_json(sim.to_json(sc)) == sc

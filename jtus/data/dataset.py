@@ -160,6 +160,11 @@ class Dataset:
         """A whole video: ``(Frame [T,1,...], targets [T,1,H,W,3])`` float32, reset at t=0."""
         self._check_factor(factor)
         g = self.group(split, name)
+        missing = [k for k in ("target", "reset", f"x{factor}/color", f"x{factor}/depth",
+                               f"x{factor}/motion", f"x{factor}/jitter") if k not in g]
+        if missing:
+            raise ValueError(f"{self.path}: {split}/{name} lacks {missing}; not a complete "
+                             "jtus dataset video")
         x = g[f"x{factor}"]
         reset = g["reset"][:].copy()
         reset[0] = True

@@ -322,7 +322,14 @@ def params_from_torch(state_dict, config: Config = Config()):
     ref = jax.eval_shape(lambda: init(jax.random.PRNGKey(0), config))  # shapes only
     params = jax.tree_util.tree_map(lambda x: None, ref)
     for key, path in names:
-        v = _to_numpy(state_dict[key]).astype(np.float32)
+        v = _to_numpy(state_dict[key])
+        if not np.issubdtype(v.dtype, np.floating):
+            raise ValueError(f"state_dict[{key!r}]: expected floating-point weights, got "
+                             f"{v.dtype}")
+        if not np.all(np.isfinite(v)):
+            raise ValueError(f"state_dict[{key!r}]: {int(np.sum(~np.isfinite(v)))} NaN or "
+                             "infinite values")
+        v = v.astype(np.float32)
         if v.ndim == 4:
             v = v.transpose(2, 3, 1, 0)  # OIHW -> HWIO
         node, want = params, ref

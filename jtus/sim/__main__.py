@@ -33,7 +33,7 @@ from jtus import cli, timing
 from jtus.data.conventions import linearize_depth
 from jtus.data.dataset import SPLITS
 from jtus.data.exr import linear_to_srgb
-from jtus.files import atomic_path, check_out_file
+from jtus.files import atomic_path, check_budget, check_out_file
 from jtus.sampling.jitter import VARIETY, jitter_sequence
 from jtus.sim import SCENES, from_json, get_scene, random_scene, render, to_json
 from jtus.sim.generate import Preset, default_workers, generate, preset
@@ -62,6 +62,8 @@ def resolve(spec, effects=None):
             scene = from_json(spec)
         except json.JSONDecodeError as e:
             raise ValueError(f"scene: {spec} is not valid JSON ({e})") from e
+        except ValueError as e:
+            raise ValueError(f"scene: {spec}: {e}") from e
     else:
         scene = get_scene(str(spec))
     return dataclasses.replace(scene, effects=tuple(effects)) if effects is not None else scene
@@ -105,19 +107,38 @@ def _check_out(path, force, ext):
         raise ValueError(f"--out: expected a path ending in {ext}, got {path}")
 
 
+MAX_SIZE = 16384  # HR frame side: past this a single frame alone needs gigabytes
+
+
+def render_budget(size, factors, frames, videos, workers):
+    """``(memory, disk)`` bytes of rendering ``videos`` videos of ``frames`` square
+    ``size`` frames: each worker holds one video as float32 (target and every factor's
+    colour, depth and motion) plus a frame of render temporaries; the dataset stores
+    colour as float16, depth and motion as float32."""
+    px = size * size
+    lr = sum(px // (f * f) for f in factors)
+    per_frame = px * 3 * 4 + lr * 6 * 4
+    memory = workers * (frames * per_frame + 16 * px * 4 * 8)
+    disk = videos * frames * (px * 3 * 2 + lr * (3 * 2 + 3 * 4))
+    return memory, disk
+
+
 def _render(args):
     scenes = _scenes_from(args)
     names = [s.name for s in scenes]
     if len(set(names)) != len(names):
         raise ValueError(f"scene: names repeat ({names}); every scene needs its own name")
     _check_out(args.out, args.force, ".h5")
-    if args.size < 4 or args.size % 4:
-        raise ValueError(f"--size: expected a positive multiple of 4, got {args.size}")
+    if args.size < 4 or args.size % 4 or args.size > MAX_SIZE:
+        raise ValueError(f"--size: expected a multiple of 4 in [4, {MAX_SIZE}], got {args.size}")
     for f in args.factors:
         if f not in (2, 4):
             raise ValueError(f"--factors: expected 2 and/or 4, got {f}")
     if args.frames < 1 or args.videos < 1 or args.spp < 1 or args.workers < 1:
         raise ValueError("--frames, --videos, --spp and --workers: expected positive integers")
+    check_budget(*render_budget(args.size, args.factors, args.frames,
+                                len(names) * args.videos, args.workers), args.out,
+                 args.force, what="sim render")
     jitters = VARIETY if args.jitter == "variety" else (args.jitter,)
     for j in jitters:
         for f in args.factors:
@@ -159,7 +180,8 @@ def main(argv=None):
     r = sub.add_parser("render", help="render scenes into an HDF5 dataset")
     scene_args(r)
     r.add_argument("--out", required=True)
-    r.add_argument("--force", action="store_true", help="replace an existing --out")
+    r.add_argument("--force", action="store_true",
+                   help="replace an existing --out, and render past the memory and disk check")
     r.add_argument("--frames", type=int, default=24)
     r.add_argument("--videos", type=int, default=1, help="videos per scene (own camera seeds)")
     r.add_argument("--size", type=int, default=256, help="HR frame size (square)")

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 
 from jtus.data.conventions import FAR, NEAR
 
@@ -121,6 +122,26 @@ class Scene:
                              f"{self.highlight_gain}, {self.exposure_stops}")
         if not 0 < self.near < self.far:
             raise ValueError(f"near/far: expected 0 < near < far, got {self.near}, {self.far}")
+        self._check_picture()
+
+    def _check_picture(self):
+        """Values that are well-typed but make no picture (or NaN in one)."""
+        if not self.objects:
+            raise ValueError("objects: expected at least one object")
+        if not 0.01 < self.path.fov_y < 3.1:
+            raise ValueError(f"path.fov_y: expected radians in (0.01, 3.1), got {self.path.fov_y}")
+        if not self.path.radius > 0:
+            raise ValueError(f"path.radius: expected > 0, got {self.path.radius}")
+        for where, light in [("light", self.light)] + [
+                (f"extra_lights[{i}]", x) for i, x in enumerate(self.extra_lights)]:
+            if light.kind == "directional" and not any(light.vector):
+                raise ValueError(f"{where}.vector: a directional light needs a non-zero "
+                                 f"direction, got {light.vector}")
+        for i, o in enumerate(self.objects):
+            used = {"plane": (), "box": (0, 1, 2), "sphere": (0,), "rod": (0, 1)}[o.kind]
+            if not all(o.size[k] > 0 for k in used):
+                raise ValueError(f"objects[{i}].size: a {o.kind} needs positive sizes at "
+                                 f"{list(used)}, got {o.size}")
 
     def has(self, effect: str) -> bool:
         return effect in self.effects
@@ -139,20 +160,60 @@ def _build(cls, data, where):
         raise ValueError(f"{where}: unknown keys {unknown}; expected some of {sorted(fields)}")
     kw = {}
     for k, v in data.items():
+        if k not in ("material", "light", "path", "objects", "extra_lights"):
+            default = fields[k].default
+            _check_value(f"{where}.{k}", v,
+                         None if default is dataclasses.MISSING else default)
         if k == "material":
             v = _build(Material, v, f"{where}.material")
         elif k == "light":
             v = _build(Light, v, f"{where}.light")
         elif k == "path":
             v = _build(Path, v, f"{where}.path")
-        elif k == "objects":
-            v = tuple(_build(Object, o, f"{where}.objects[{i}]") for i, o in enumerate(v))
-        elif k == "extra_lights":
-            v = tuple(_build(Light, o, f"{where}.extra_lights[{i}]") for i, o in enumerate(v))
+        elif k in ("objects", "extra_lights"):
+            if not isinstance(v, list):
+                raise ValueError(f"{where}.{k}: expected a list, got {v!r}")
+            item = Object if k == "objects" else Light
+            v = tuple(_build(item, o, f"{where}.{k}[{i}]") for i, o in enumerate(v))
         elif isinstance(v, list):
             v = tuple(tuple(x) if isinstance(x, list) else x for x in v)
         kw[k] = v
     return cls(**kw)
+
+
+def _is_number(v):
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _check_value(where, v, default):
+    """A JSON value against its field's default: numbers finite (not strings, bools or
+    null), integers whole, strings strings, vectors of the default's length of numbers
+    (``()`` allowed where the default is empty)."""
+    if default is None:  # a required field without a default: name, effects, kind
+        ok = isinstance(v, str) or (isinstance(v, list) and all(isinstance(x, str) for x in v))
+        what = "a string or a list of strings"
+    elif isinstance(default, bool):
+        ok, what = isinstance(v, bool), "true or false"
+    elif isinstance(default, int):
+        ok, what = isinstance(v, int) and not isinstance(v, bool), "an integer"
+    elif isinstance(default, float):
+        ok, what = _is_number(v), "a finite number"
+    elif isinstance(default, str):
+        ok, what = isinstance(v, str), "a string"
+    elif isinstance(default, tuple) and default and isinstance(default[0], tuple):
+        ok = (isinstance(v, list) and len(v) == len(default) and all(
+            isinstance(x, list) and len(x) == len(d) and all(map(_is_number, x))
+            for x, d in zip(v, default)))
+        what = f"{len(default)} lists of {len(default[0])} finite numbers"
+    elif isinstance(default, tuple):
+        n = len(default) or 3
+        ok = isinstance(v, list) and (len(v) == n or (not default and not v)) and all(
+            map(_is_number, v))
+        what = f"a list of {n} finite numbers" + (" or []" if not default else "")
+    else:
+        return
+    if not ok:
+        raise ValueError(f"{where}: expected {what}, got {v!r}")
 
 
 def from_dict(data) -> Scene:
