@@ -57,14 +57,31 @@ def restore_train_state(workdir, ts):
         restored = serialization.from_bytes(target, data)
     except Exception as e:
         raise ValueError(f"{path}: not a checkpoint of this model and optimizer ({e})") from e
-    history = []
-    mpath = os.path.join(workdir, METRICS)
-    if os.path.exists(mpath):
-        with open(mpath) as fh:
-            history = json.load(fh)
+    history = read_history(os.path.join(workdir, METRICS), int(restored["epoch"]))
     state = ts._replace(step=jnp.asarray(restored["step"]), params=restored["params"],
                         opt_state=restored["opt_state"])
     return state, int(restored["epoch"]), history
+
+
+def read_history(path, epochs):
+    """The per-epoch records of ``metrics.json`` (``[]`` when absent): a list of
+    ``epochs`` objects, each with an ``epoch`` number; ``ValueError`` naming the file
+    and what is wrong otherwise (a resumed run must not carry a damaged history)."""
+    if not os.path.exists(path):
+        return []
+    try:
+        with open(path, encoding="utf-8") as fh:
+            history = json.load(fh)
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ValueError(f"{path}: not valid JSON ({e}); restore it or start again with "
+                         "--overwrite") from e
+    if (not isinstance(history, list) or len(history) != epochs
+            or not all(isinstance(r, dict) and r.get("epoch") == i + 1
+                       for i, r in enumerate(history))):
+        raise ValueError(f"{path}: expected a list of {epochs} epoch records (epoch 1 ... "
+                         f"{epochs}) matching the checkpoint; restore it or start again "
+                         "with --overwrite")
+    return history
 
 
 def read_params(path, template, what):

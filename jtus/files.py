@@ -40,9 +40,14 @@ def read_json_fields(path, cls, what):
     """A JSON file holding one object whose keys are fields of dataclass ``cls``:
     the dict, or ``ValueError`` naming ``path`` (invalid JSON, not an object, unknown
     keys; ``what`` names the kind of keys in messages, e.g. "config keys")."""
+    if os.path.isdir(path):
+        raise ValueError(f"{path}: is a folder; expected a JSON file")
     try:
-        with open(path) as fh:
+        with open(path, encoding="utf-8") as fh:
             data = json.load(fh)
+    except UnicodeDecodeError as e:
+        raise ValueError(f"{path}: not a UTF-8 text file, so not JSON ({e.reason} at byte "
+                         f"{e.start})") from e
     except json.JSONDecodeError as e:
         raise ValueError(f"{path}: not valid JSON ({e})") from e
     fields = {f.name for f in dataclasses.fields(cls)}

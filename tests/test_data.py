@@ -291,13 +291,20 @@ def test_import_exr_refuses_bad_names_outputs_and_sidecars(tmp_path, capsys):
              (["--sidecar", str(good), "--out", str(tmp_path / "y.h5"), "--name", "a/b"], "--name")]
     for text, msg in (('{"motion_y_up": "no"}', "motion_y_up: expected true or false"),
                       ('{"color": ["R", "G"]}', "color: expected 3 channel names"),
-                      ('{"near": "0.1"}', "near: expected a number"),
-                      ('{"far": null}', "far: expected a number"),
+                      ('{"near": "0.1"}', "near: expected a finite number"),
+                      ('{"far": null}', "far: expected a finite number"),
+                      ('{"far": NaN}', "far: expected a finite number"),
+                      ('{"jitter": {"x": 1}}', "jitter: expected 'thesis', one [x, y]"),
+                      ('{"jitter": ["a", "b"]}', "jitter: expected 'thesis', one [x, y]"),
                       ('{"depth_kind": "log"}', "depth_kind: expected one of"),
                       ('{not json', "not valid JSON"), ('[1, 2]', "expected a JSON object")):
         bad = tmp_path / f"bad{len(cases)}.json"
         bad.write_text(text)
         cases.append((["--sidecar", str(bad), "--out", str(tmp_path / "y.h5")], msg))
+    binary = tmp_path / "binary.json"
+    binary.write_bytes(b"\x80\x81\x82")
+    cases += [(["--sidecar", str(binary), "--out", str(tmp_path / "y.h5")], "not a UTF-8"),
+              (["--sidecar", str(tmp_path), "--out", str(tmp_path / "y.h5")], "is a folder")]
     for args, msg in cases:
         capsys.readouterr()
         assert data_cli.main(base + args) == 2, args

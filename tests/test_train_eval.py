@@ -140,6 +140,13 @@ def test_a_failed_command_leaves_an_existing_run_alone(tiny_data, tmp_path, caps
     # --overwrite starts again
     assert train.main(base + ["--overwrite", "--lr", "0.002"]) == 0
     assert json.loads((work / "config.json").read_text())["lr"] == 0.002
+    # a damaged history is refused on --resume, naming the file; the checkpoint stays
+    (work / "metrics.json").write_text("[{\"epoch\": 1,")
+    ckpt = (work / "checkpoint.msgpack").read_bytes()
+    capsys.readouterr()
+    assert train.main(base[:-2] + ["--epochs", "2", "--lr", "0.002", "--resume"]) == 2
+    assert "metrics.json: not valid JSON" in capsys.readouterr().err
+    assert (work / "checkpoint.msgpack").read_bytes() == ckpt
 
 
 def test_non_finite_data_stops_training_without_a_checkpoint(tiny_data, tmp_path):

@@ -91,7 +91,7 @@ def _parser():
                    default=["peak", "infer", "train"])
     p.add_argument("--models", nargs="+", choices=models.NAMES, default=list(models.NAMES))
     p.add_argument("--sizes", nargs="+", choices=tuple(SIZES), default=["720p", "1080p"])
-    p.add_argument("--factors", nargs="+", type=int, default=[2, 4])
+    p.add_argument("--factors", nargs="+", type=int, default=[2, 4], choices=(2, 4))
     p.add_argument("--dtypes", nargs="+", default=["float32"],
                    choices=("float32", "bfloat16", "float16"),
                    help="compute dtypes, for the models that take them")
@@ -140,6 +140,15 @@ def main(argv=None):
             files.check_out_file(args.out)
         except ValueError as e:
             p.error(str(e))
+    for name in ("repeats", "train_crop", "train_batch", "train_seq", "train_loss_frames"):
+        if getattr(args, name) < 1:
+            p.error(f"--{name.replace('_', '-')}: expected a positive integer, "
+                    f"got {getattr(args, name)}")
+    if args.train_crop % 4 or any(args.train_crop % f for f in args.factors[:1]):
+        p.error(f"--train-crop: expected a multiple of 4 and of the factor, got {args.train_crop}")
+    if args.train_loss_frames > args.train_seq:
+        p.error(f"--train-loss-frames: {args.train_loss_frames} exceeds --train-seq "
+                f"{args.train_seq}")
     if args.train_preset:
         cfg = run_config.PRESETS[args.train_preset]
         plan = recipe.plan(cfg)

@@ -115,10 +115,17 @@ class ImportSpec:
                                  f"{getattr(self, field)!r}")
         for field in ("near", "far"):
             v = getattr(self, field)
-            if isinstance(v, bool) or not isinstance(v, (int, float)):
-                raise ValueError(f"{field}: expected a number, got {v!r}")
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+                raise ValueError(f"{field}: expected a finite number, got {v!r}")
         if isinstance(self.jitter, str) and self.jitter != "thesis":
             raise ValueError(f"jitter: expected 'thesis' or numbers, got {self.jitter!r}")
+        if not isinstance(self.jitter, str):
+            j = np.asarray(self.jitter, dtype=object)
+            if (j.ndim not in (1, 2) or j.shape[-1] != 2 or not all(
+                    isinstance(x, (int, float)) and not isinstance(x, bool)
+                    for x in j.reshape(-1))):
+                raise ValueError(f"jitter: expected 'thesis', one [x, y] or a list of [x, y] "
+                                 f"numbers, got {self.jitter!r}")
         if not isinstance(self.exposure_channel, str):
             raise ValueError(f"exposure_channel: expected a channel name, got "
                              f"{self.exposure_channel!r}")
