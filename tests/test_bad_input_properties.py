@@ -211,3 +211,126 @@ def test_import_exr_cli_succeeds_or_fails_cleanly_without_touching_the_file(
     # without --force an existing --out is never replaced, valid arguments or not
     assert _digest(out) == before
     assert rc == 2 and ("exists" in err or "error" in err or "usage" in err)
+
+
+# ---------------------------------------------------------------- scene JSON and NSS metadata
+
+_BAD = st.one_of(st.none(), st.booleans(), st.text(max_size=3), st.just(float("nan")),
+                 st.just(float("inf")), st.just(-1.0), st.just(0), st.just([]),
+                 st.lists(st.floats(-2, 2), min_size=1, max_size=4), st.just({}))
+
+
+def _paths(tree, prefix=()):
+    """Every leaf and list of a JSON tree, as key paths."""
+    if isinstance(tree, dict):
+        for k, v in tree.items():
+            yield prefix + (k,)
+            yield from _paths(v, prefix + (k,))
+    elif isinstance(tree, list) and tree and isinstance(tree[0], (dict, list)):
+        for i, v in enumerate(tree):
+            yield from _paths(v, prefix + (i,))
+
+
+def _set(tree, path, value):
+    for k in path[:-1]:
+        tree = tree[k]
+    tree[path[-1]] = value
+
+
+@pytest.fixture(scope="module")
+def scene_tree():
+    from jtus import sim
+    return json.loads(sim.to_json(sim.random_scene(7, effects=sim.EFFECTS)))
+
+
+@_examples(150)
+@given(pick=st.integers(0, 10**6), value=_BAD)
+def test_scene_json_loads_or_names_the_field(tmp_path_factory, scene_tree, pick, value):
+    """Any field of a user's scene set to a wrong type, null, NaN, Inf, a wrong length
+    or an out-of-range value: ``sim show --scene FILE`` prints the scene or ends in one
+    ``error:`` naming the file and the field, exit 2; never a traceback."""
+    import contextlib
+    import copy
+    import io
+
+    from jtus.sim import __main__ as sim_cli
+
+    paths = list(_paths(scene_tree))
+    path = paths[pick % len(paths)]
+    tree = copy.deepcopy(scene_tree)
+    _set(tree, path, value)
+    f = tmp_path_factory.mktemp("scene") / "s.json"
+    f.write_text(json.dumps(tree))
+    err, out = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):
+        rc = sim_cli.main(["show", "--scene", str(f)])
+    if rc == 0:  # accepted: every value has its field's kind, numbers are finite
+        _same_kinds(scene_tree, json.loads(out.getvalue()), path)
+        return
+    assert rc == 2
+    msg = err.getvalue().strip()
+    assert msg.startswith("error: ") and "\n" not in msg and str(f) in msg, msg
+    key = next(k for k in reversed(path) if isinstance(k, str))
+    assert key in msg or "objects" in msg or "lights" in msg or "effects" in msg, (path, msg)
+
+
+def _kind(v):
+    if isinstance(v, bool) or v is None or isinstance(v, str):
+        return type(v).__name__
+    if isinstance(v, (int, float)):
+        assert np.isfinite(v), v
+        return "number"
+    return type(v).__name__
+
+
+def _same_kinds(want, got, where):
+    if isinstance(want, dict):
+        for k in want:
+            _same_kinds(want[k], got[k], where)
+    elif isinstance(want, list) and want:
+        assert isinstance(got, list) and (len(got) == len(want) or isinstance(want[0], dict)), (
+            where, got)
+        for w, g in zip(want, got):
+            _same_kinds(w, g, where)
+    else:
+        assert _kind(want) == _kind(got) or (isinstance(want, list) and got == []), (where, got)
+
+
+@pytest.fixture(scope="module")
+def nss_root(tmp_path_factory):
+    from tests import nss_fixture
+    root = tmp_path_factory.mktemp("nss")
+    nss_fixture.write_dataset(str(root))
+    return root
+
+
+@_examples(60)
+@given(pick=st.integers(0, 10**6), value=_BAD)
+def test_nss_metadata_imports_or_names_the_field(tmp_path_factory, nss_root, pick, value):
+    """Any field of an NSS sequence's JSON set to a wrong value: ``import-nss`` imports
+    or ends in one ``error:`` naming the file, exit 2, with nothing written; never a
+    traceback."""
+    import contextlib
+    import copy
+    import io
+    import shutil
+
+    root = tmp_path_factory.mktemp("nss-case")
+    shutil.copytree(nss_root, root, dirs_exist_ok=True)
+    meta = json.loads((root / "0000.json").read_text())
+    paths = [p for p in _paths(meta) if p[-1] not in ("ViewProjection", "Samples",
+                                                        "EmulatedFramerate", "Version")]
+    tree = copy.deepcopy(meta)
+    _set(tree, paths[pick % len(paths)], value)
+    (root / "0000.json").write_text(json.dumps(tree))
+    out = root / "out.h5"
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        rc = data_cli.main(["import-nss", "--root", str(root), "--factor", "2", "--out",
+                            str(out), "--quiet"])
+    if rc == 0:
+        assert out.exists()
+        return
+    assert rc == 2 and not out.exists()
+    msg = err.getvalue().strip()
+    assert msg.startswith("error: ") and "\n" not in msg and "0000.json" in msg, msg
