@@ -1,17 +1,20 @@
 """DLCTUS's step as an ONNX graph of the operators an engine's runtime implements
-natively: ``Conv`` for the network, ``GridSample`` for the warps, ``DepthToSpace`` /
-``SpaceToDepth`` for the pixel shuffles, ``Resize`` for the motion vectors, and
-element-wise ops for the rest (``python -m jtus.export --format onnx``).
+natively: ``Conv`` for the network, ``GridSample`` for the history read,
+``DepthToSpace`` / ``SpaceToDepth`` for the pixel shuffles, and element-wise ops for
+the rest (``python -m jtus.export --format onnx``).
 
 Every operator computes what jtus's step computes (``docs/integration.md``):
 
 - ``GridSample`` (``align_corners=0``, ``padding_mode=border``): pixel centres at
   ``(i + 0.5) / size`` in normalized units and every tap index clamped into the image,
   as ``jtus.sampling`` does; ``mode=cubic`` is Keys' kernel with a = -0.75 (jtus's
-  ``bicubic`` at ``warp_a=-0.75``), ``mode=linear`` its ``bilinear``. The history read
-  and the jitter-aligned up-sampling of the input use it.
-- ``Resize`` (``linear``, ``half_pixel``, edge-clamped) is ``F.interpolate(bilinear,
-  align_corners=False)``, jtus's ``upsample`` of the motion vectors.
+  ``bicubic`` at ``warp_a=-0.75``), ``mode=linear`` its ``bilinear``. It reads the
+  history in float64: in float32 the rounding of the normalized coordinates alone moves
+  a read at x ~ 1900 by 1e-4 pixels.
+- The bilinear up-samplings (the jitter-aligned input, the motion vectors) are the
+  fixed 3-tap stencils of ``sampling.upsample``, with the same products and sums, so
+  the reprojection coordinates are jtus's to the bit; the depth is linearized as XLA
+  evaluates jtus's (one rounding of the denominator).
 - The 4x4 stride-4 convolution on the zero-up-sampled input is split as jtus's ``opt2``
   does it: the history half a ``Conv`` on the history, the input half a ``MatMul`` of
   the low-resolution image (``SpaceToDepth`` at 2x) with the kernel rows of this
