@@ -16,13 +16,14 @@ import tempfile
 
 
 @contextlib.contextmanager
-def atomic_path(path):
+def atomic_path(path, suffix=".tmp"):
     """Yield a temporary path beside ``path``; rename it onto ``path`` on success and
-    delete it on any failure (including KeyboardInterrupt)."""
+    delete it on any failure (including KeyboardInterrupt). ``suffix`` ends the
+    temporary name (a writer that picks its format by extension needs its own)."""
     path = os.fspath(path)
     d = os.path.dirname(os.path.abspath(path))
     os.makedirs(d, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=os.path.basename(path) + ".", suffix=".tmp", dir=d)
+    fd, tmp = tempfile.mkstemp(prefix=os.path.basename(path) + ".", suffix=suffix, dir=d)
     os.close(fd)
     umask = os.umask(0)
     os.umask(umask)

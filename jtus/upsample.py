@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jtus import cli, loading, rollout
-from jtus.files import check_out_file
+from jtus.files import atomic_path, check_out_file
 from jtus.data import exr
 from jtus.data.dataset import Dataset
 from jtus.data.exr import linear_to_srgb
@@ -78,10 +78,8 @@ def write_mp4(path, frames_lr, outputs, factor, fps=30):
     lr = np.repeat(np.repeat(frames_lr, factor, 1), factor, 2)
     both = np.concatenate([lr, outputs], 2)
     both = both[:, : both.shape[1] // 2 * 2, : both.shape[2] // 2 * 2]
-    tmp = os.path.join(os.path.dirname(os.path.abspath(path)),
-                       f".{os.path.basename(path)}.{os.getpid()}.tmp.mp4")
     try:
-        with warnings.catch_warnings():
+        with atomic_path(path, suffix=".tmp.mp4") as tmp, warnings.catch_warnings():
             # ffmpeg runs in a subprocess; JAX warns on every fork of a threaded process,
             # which is harmless here (the child only execs ffmpeg)
             warnings.filterwarnings("ignore", message="os.fork", category=RuntimeWarning)
@@ -89,14 +87,10 @@ def write_mp4(path, frames_lr, outputs, factor, fps=30):
                                     macro_block_size=1, format="FFMPEG") as w:
                 for img in both:
                     w.append_data(np.round(linear_to_srgb(img) * 255).astype(np.uint8))
-        if not os.path.isfile(tmp) or os.path.getsize(tmp) == 0:
-            raise ValueError(f"--mp4: ffmpeg wrote nothing to {path}")
-        os.replace(tmp, path)
+            if os.path.getsize(tmp) == 0:
+                raise ValueError(f"--mp4: ffmpeg wrote nothing to {path}")
     except (OSError, RuntimeError) as e:
         raise ValueError(f"--mp4: writing {path} failed: {e}") from e
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
 
 
 def shown_frames(outs, lr, exposure):

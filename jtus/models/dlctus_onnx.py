@@ -66,6 +66,11 @@ class _Graph:
         self.inits.append(self.nh.from_array(np.asarray(value, dtype), name))
         return name
 
+    def slice(self, x, start, end, axis):
+        """``x`` from ``start`` to ``end`` along ``axis`` (constants)."""
+        return self("Slice", x, self.const([start], np.int64), self.const([end], np.int64),
+                    self.const([axis], np.int64))
+
     def __call__(self, op, *inputs, out=None, **attrs):
         self._n += 1
         out = out or f"{op.lower()}{self._n}"
@@ -79,31 +84,28 @@ def _size(g, x, axis, dtype=np.float32):
     return g("Cast", s, to=11 if dtype == np.float64 else 1)
 
 
-def _pixel_centres(g, ref, scale, nchw=False):
-    """The centres ``(i + 0.5) * scale`` of ``ref``'s ``[B,C,H,W]`` pixels, (x, y):
-    ``[1,H,W,2]``, or ``[1,2,H,W]`` with ``nchw``."""
+def _pixel_centres(g, ref):
+    """``[1,2,H,W]``: the centres ``i + 0.5`` (x, then y) of ``ref``'s ``[B,C,H,W]``
+    pixels."""
     axes = []
     for axis in (3, 2):  # x along the width, then y
         n = g("Shape", ref, start=axis, end=axis + 1)
         r = g("Range", g.const(0, np.int64), g("Squeeze", n), g.const(1, np.int64))
-        axes.append(g("Mul", g("Add", g("Cast", r, to=1), g.const(0.5)), g.const(scale)))
+        axes.append(g("Add", g("Cast", r, to=1), g.const(0.5)))
     x, y = axes
-    h = g("Shape", ref, start=2, end=3)
-    w = g("Shape", ref, start=3, end=4)
     one = g.const([1], np.int64)
-    shape = g("Concat", one, one, h, w, axis=0) if nchw else g("Concat", one, h, w, one, axis=0)
-    xs = g("Expand", g("Reshape", x, g.const([1, 1, 1, -1] if nchw else [1, 1, -1, 1],
-                                              np.int64)), shape)
-    ys = g("Expand", g("Reshape", y, g.const([1, 1, -1, 1] if nchw else [1, -1, 1, 1],
-                                              np.int64)), shape)
-    return g("Concat", xs, ys, axis=1 if nchw else 3)
+    shape = g("Concat", one, one, g("Shape", ref, start=2, end=4), axis=0)
+    xs = g("Expand", g("Reshape", x, g.const([1, 1, 1, -1], np.int64)), shape)
+    ys = g("Expand", g("Reshape", y, g.const([1, 1, -1, 1], np.int64)), shape)
+    return g("Concat", xs, ys, axis=1)
 
 
-def _normalized(g, xy, image, dtype=np.float32):
-    """Pixel coordinates ``[B,Ho,Wo,2]`` in ``image`` ``[B,C,H,W]`` -> GridSample's grid
-    ``xy * 2 / (W, H) - 1`` (``align_corners=0``), in ``dtype``."""
-    size = g("Concat", _size(g, image, 3, dtype), _size(g, image, 2, dtype), axis=0)
-    return g("Sub", g("Mul", xy, g("Div", g.const(2.0, dtype), size)), g.const(1.0, dtype))
+def _normalized64(g, xy, image):
+    """Pixel coordinates ``[B,Ho,Wo,2]`` (float64) in ``image`` ``[B,C,H,W]`` ->
+    GridSample's grid ``xy * 2 / (W, H) - 1`` (``align_corners=0``), in float64."""
+    size = g("Concat", _size(g, image, 3, np.float64), _size(g, image, 2, np.float64), axis=0)
+    return g("Sub", g("Mul", xy, g("Div", g.const(2.0, np.float64), size)),
+             g.const(1.0, np.float64))
 
 
 def _net(g, params, config, lr, cell, hist):
@@ -122,15 +124,13 @@ def _net(g, params, config, lr, cell, hist):
                         rows[cy * f + cx, :, (dy * m + dx) * c_lr + c] = \
                             k[f * dy + cy, f * dx + cx, c]
     x = g("SpaceToDepth", lr, blocksize=m) if m > 1 else lr        # [B,C*m*m,H/4,W/4]
-    shape = g("Shape", x)
     flat = g("Reshape", x, g("Concat", g("Shape", x, start=0, end=2),
                              g.const([-1], np.int64), axis=0))      # [B,C*m*m,HW/16]
     kr = g("Gather", g.const(rows), cell, axis=0)                  # [B,O,C*m*m]
     zero = g("MatMul", kr, flat)                                   # [B,O,HW/16]
     zero = g("Reshape", zero, g("Concat", g("Shape", x, start=0, end=1),
-                                g.const([o], np.int64),
-                                g("Slice", shape, g.const([2], np.int64),
-                                  g.const([4], np.int64)), axis=0))
+                                g.const([o], np.int64), g("Shape", x, start=2, end=4),
+                                axis=0))
     kh = k[:, :, c_lr:].transpose(3, 2, 0, 1)                      # OIHW, history half
     h = g("Conv", hist, g.const(kh), g.const(params["down"]["bias"]), strides=[4, 4])
     h = g("Add", h, zero)
@@ -147,8 +147,9 @@ def _net(g, params, config, lr, cell, hist):
 
 
 def _prepare(g, config, f):
-    """The step's inputs to NCHW: ``(colour, lr, jau, cell, scale)`` with the exposure
-    (and, ``hdr``, the tone map) applied as ``jtus.models.base.exposed_parts`` does."""
+    """The step's inputs in NCHW: ``(history, lr, jau, cell, scale)``, the colour
+    pre-exposed (and, ``hdr``, tone-mapped) as ``jtus.models.base.exposed_parts`` does;
+    ``cell [B]`` is the jitter's sub-pixel ``cy * f + cx``."""
     color = g("Transpose", "color", perm=_NCHW)                   # [B,3,h,w]
     scale = g("Reshape", "exposure", g.const([-1, 1, 1, 1], np.int64))
     color = g("Mul", color, scale)
@@ -172,17 +173,14 @@ def _prepare(g, config, f):
                                   g.const([1], np.int64), g("Shape", color, start=2),
                                   axis=0), value=_one_tensor(g))
     lr_rgb1 = g("Concat", color, ones, axis=1)
-    hr_ref = g("Transpose", "history", perm=_NCHW)
+    history = g("Transpose", "history", perm=_NCHW)
     jau = _jitter_aligned(g, lr_rgb1, f)                           # [B,4,H,W]
     cell = g("Clip", g("Floor", g("Mul", "jitter", g.const(float(f)))), g.const(0.0),
              g.const(float(f - 1)))
-    cell = g("Cast", g("Add", g("Mul", g("Slice", cell, g.const([1], np.int64),
-                                         g.const([2], np.int64), g.const([1], np.int64)),
-                                g.const(float(f))),
-                       g("Slice", cell, g.const([0], np.int64), g.const([1], np.int64),
-                         g.const([1], np.int64))), to=7)
+    cell = g("Cast", g("Add", g("Mul", g.slice(cell, 1, 2, 1), g.const(float(f))),
+                       g.slice(cell, 0, 1, 1)), to=7)
     cell = g("Squeeze", cell, g.const([1], np.int64))              # [B] cy * f + cx
-    return hr_ref, lr, jau, cell, scale
+    return history, lr, jau, cell, scale
 
 
 def _phase_weights(g, j, f):
@@ -202,16 +200,13 @@ def _taps(g, x, axis):
     """The three shifted views ``x[k : k + n]`` (k = 0, 1, 2) along ``axis`` of an
     input padded by one on each side."""
     ends = (-2, -1, np.iinfo(np.int64).max)
-    return [g("Slice", x, g.const([k], np.int64), g.const([e], np.int64),
-              g.const([axis], np.int64)) for k, e in enumerate(ends)]
+    return [g.slice(x, k, e, axis) for k, e in enumerate(ends)]
 
 
 def _jitter_aligned(g, lr, f):
     """``sampling.jitter_aligned_upsample(lr, jitter, f, "bilinear")`` in NCHW."""
-    wx = _phase_weights(g, g("Slice", "jitter", g.const([0], np.int64), g.const([1], np.int64),
-                             g.const([1], np.int64)), f)
-    wy = _phase_weights(g, g("Slice", "jitter", g.const([1], np.int64), g.const([2], np.int64),
-                             g.const([1], np.int64)), f)
+    wx = _phase_weights(g, g.slice("jitter", 0, 1, 1), f)
+    wy = _phase_weights(g, g.slice("jitter", 1, 2, 1), f)
     return _phases(g, lr, wx, wy, f)
 
 
@@ -235,15 +230,13 @@ def _phases(g, lr, wx, wy, f):
     p = g("Pad", lr, g.const([0, 0, 1, 1, 0, 0, 1, 1], np.int64), mode="edge")
     row = None
     for k, tap in enumerate(_taps(g, p, 3)):                      # [B,C,h+2,w] each
-        wk = g("Reshape", g("Slice", wx, g.const([k], np.int64), g.const([k + 1], np.int64),
-                            g.const([2], np.int64)), g.const([-1, 1, 1, 1, f], np.int64))
+        wk = g("Reshape", g.slice(wx, k, k + 1, 2), g.const([-1, 1, 1, 1, f], np.int64))
         term = g("Mul", g("Unsqueeze", tap, g.const([4], np.int64)), wk)
         row = term if row is None else g("Add", row, term)         # [B,C,h+2,w,f]
     row = g("Reshape", row, g.const([0, 0, 0, -1], np.int64))      # [B,C,h+2,W]
     out = None
     for k, tap in enumerate(_taps(g, row, 2)):                    # [B,C,h,W] each
-        wk = g("Reshape", g("Slice", wy, g.const([k], np.int64), g.const([k + 1], np.int64),
-                            g.const([2], np.int64)), g.const([-1, 1, 1, f, 1], np.int64))
+        wk = g("Reshape", g.slice(wy, k, k + 1, 2), g.const([-1, 1, 1, f, 1], np.int64))
         term = g("Mul", g("Unsqueeze", tap, g.const([3], np.int64)), wk)
         out = term if out is None else g("Add", out, term)         # [B,C,h,f,W]
     width = g("Shape", row, start=3, end=4)
@@ -258,25 +251,20 @@ def _reproject(g, config, f, history, jau):
     """The history read at ``P + f * upsample(motion)``, ``jau`` where that falls
     outside the previous frame or the frame is a reset (``dlctus.reproject``)."""
     if not config.accumulation:
-        history = g("Concat", g("Slice", history, g.const([0], np.int64),
-                                g.const([3], np.int64), g.const([1], np.int64)),
-                    g("Slice", jau, g.const([3], np.int64), g.const([4], np.int64),
-                      g.const([1], np.int64)), axis=1)
+        history = g("Concat", g.slice(history, 0, 3, 1), g.slice(jau, 3, 4, 1), axis=1)
     mv = _upsample(g, g("Transpose", "motion", perm=_NCHW), f)     # [B,2,H,W]
-    xy = g("Add", _pixel_centres(g, history, 1.0, nchw=True), g("Mul", mv, g.const(float(f))))
+    xy = g("Add", _pixel_centres(g, history), g("Mul", mv, g.const(float(f))))
     mode = "cubic" if config.warp == "bicubic" else "linear"
     # The read in float64: GridSample takes normalized coordinates, and in float32 their
     # rounding moves a read at x ~ 1920 by up to 1e-4 pixels, 1e-4 in value on a noisy
     # image; in float64 it reads jtus's float32 coordinates exactly.
-    grid = _normalized(g, g("Transpose", g("Cast", xy, to=11), perm=_NHWC), history,
-                       dtype=np.float64)
+    grid = _normalized64(g, g("Transpose", g("Cast", xy, to=11), perm=_NHWC), history)
     rep = g("Cast", g("GridSample", g("Cast", history, to=11), grid, mode=mode,
                       padding_mode="border", align_corners=0), to=1)
     # sampling.inside_mask: 0 <= x <= W and 0 <= y <= H; read there unless a reset
     keep = g("Not", g("Reshape", "reset", g.const([-1, 1, 1, 1], np.int64)))
     for c, axis in ((0, 3), (1, 2)):
-        v = g("Slice", xy, g.const([c], np.int64), g.const([c + 1], np.int64),
-              g.const([1], np.int64))                              # [B,1,H,W]
+        v = g.slice(xy, c, c + 1, 1)                              # [B,1,H,W]
         keep = g("And", keep, g("And", g("GreaterOrEqual", v, g.const(0.0)),
                                 g("LessOrEqual", v, _size(g, history, axis))))
     return g("Where", keep, rep, jau)
@@ -299,19 +287,16 @@ def build(params, config):
     net = _net(g, params, config, lr, cell, hist)
     o = g("DepthToSpace", g("Clip", net, g.const(0.0), g.const(1.0)), blocksize=4,
           mode="CRD")                                              # [B,2,H,W]
-    o1 = g("Slice", o, g.const([0], np.int64), g.const([1], np.int64), g.const([1], np.int64))
+    o1 = g.slice(o, 0, 1, 1)
     out = g("Add", g("Mul", jau, o1), g("Mul", hist, g("Sub", g.const(1.0), o1)))
     if config.accumulation:
-        o2 = g("Slice", o, g.const([1], np.int64), g.const([2], np.int64),
-               g.const([1], np.int64))
-        rgb = g("Slice", out, g.const([0], np.int64), g.const([3], np.int64),
-                g.const([1], np.int64))
-        acc = g("Slice", out, g.const([3], np.int64), g.const([4], np.int64),
-                g.const([1], np.int64))
+        o2 = g.slice(o, 1, 2, 1)
+        rgb = g.slice(out, 0, 3, 1)
+        acc = g.slice(out, 3, 4, 1)
         out = g("Concat", rgb, g("Mul", acc, o2), axis=1)
     out = g("Clip", out, g.const(0.0), g.const(1.0))
     g("Transpose", out, perm=_NHWC, out="history_out")
-    rgb = g("Slice", out, g.const([0], np.int64), g.const([3], np.int64), g.const([1], np.int64))
+    rgb = g.slice(out, 0, 3, 1)
     if config.hdr:  # inverse tonemap: t / max(epsilon, 1 - max(r, g, b))
         mx = g("ReduceMax", rgb, g.const([1], np.int64), keepdims=1)
         rgb = g("Div", rgb, g("Max", g("Sub", g.const(1.0), mx), g.const(TONEMAP_EPSILON)))
