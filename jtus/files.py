@@ -60,10 +60,16 @@ def read_json_fields(path, cls, what):
     return data
 
 
-def _writable_parent(path, field):
+def _existing_parent(path):
+    """The nearest folder above ``path`` that exists (where it would be created)."""
     parent = os.path.dirname(os.path.abspath(path))
     while not os.path.exists(parent):
         parent = os.path.dirname(parent)
+    return parent
+
+
+def _writable_parent(path, field):
+    parent = _existing_parent(path)
     if not os.path.isdir(parent):
         raise ValueError(f"{field}: {parent} is a file, so {path} cannot be created")
     if not os.access(parent, os.W_OK):
@@ -116,9 +122,7 @@ def check_budget(memory, disk, out, force=False, what="this command"):
         raise ValueError(f"{what} needs about {memory / gib:.1f} GiB of memory, and "
                          f"{free_mem / gib:.1f} GiB are free; use smaller sizes or fewer "
                          f"frames, or pass --force to try anyway")
-    folder = os.path.dirname(os.path.abspath(out))
-    while not os.path.exists(folder):
-        folder = os.path.dirname(folder)
+    folder = _existing_parent(out)
     free_disk = shutil.disk_usage(folder).free
     if disk > free_disk:
         raise ValueError(f"{what} writes about {disk / gib:.1f} GiB, and {folder} has "
