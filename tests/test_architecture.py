@@ -125,7 +125,7 @@ LAYERS = (
 # optional heavy dependencies, imported inside the function that needs them; each such
 # import carries a ``lazy:`` comment saying why
 LAZY = ("torch", "onnx", "jax2onnx", "onnxruntime", "flatbuffers", "imageio", "imageio_ffmpeg",
-        "mitsuba", "jtus.reference")
+        "mitsuba", "jtus.reference", "embreex", "trimesh")
 
 
 def layer_of(module):

@@ -9,8 +9,12 @@
     python -m jtus.sim render --random 123 --effects camera_motion,texture_detail --out r.h5
     python -m jtus.sim fps --preset default
     python -m jtus.sim cost --out docs/results/sim_cost.json
+    python -m jtus.sim render --scene my_level.gltf --out mine.h5 --frames 24
+    python -m jtus.sim render --scene oa:oa_dm4 --out dm4.h5   # after data/fetch_game_assets.sh
+    python -m jtus.sim levels                                  # the installed game levels
 
-A scene is a built-in name, ``random_<seed>``, or a JSON file (``show`` prints one).
+A scene is a built-in name, ``random_<seed>``, a JSON file (``show`` prints one), a
+mesh file (``.gltf``, ``.glb``, ``.obj``) or a game level ``oa:<map>``.
 ``render`` writes the dataset layout of ``docs/data.md`` (the videos in ``--split``),
 which ``train``, ``evaluate`` and ``upsample`` read like any generated dataset.
 """
@@ -35,8 +39,9 @@ from jtus.data.dataset import SPLITS
 from jtus.data.exr import linear_to_srgb
 from jtus.files import atomic_path, check_budget, check_out_file
 from jtus.sampling.jitter import VARIETY, jitter_sequence
-from jtus.sim import SCENES, from_json, get_scene, random_scene, render, to_json
+from jtus.sim import SCENES, from_json, game, get_scene, meshfile, random_scene, render, to_json
 from jtus.sim.generate import Preset, default_workers, generate, preset
+from jtus.sim.mesh import MESH_EFFECTS, MeshScene
 from jtus.sim.scene import EFFECTS, Scene
 from jtus.sim.video import VideoRenderer
 
@@ -47,8 +52,18 @@ def _to_u8(x):
 
 def resolve(spec, effects=None):
     """A ``Scene`` from a built-in name, ``random_<seed>``, a ``.json`` path or a seed
-    (int); ``effects`` (names) replaces the scene's declared effects."""
+    (int); or a ``MeshScene`` from a game level ``oa:<map>`` or a ``.gltf``/``.glb``/
+    ``.obj`` file. ``effects`` (names) replaces the scene's declared effects."""
 
+    if game.is_level(str(spec)) or str(spec).lower().endswith(meshfile.SUFFIXES):
+        if effects is not None:
+            bad = [e for e in effects if e not in MESH_EFFECTS]
+            if bad:
+                raise ValueError(f"effects: unknown {bad}; a mesh scene takes names from "
+                                 f"{MESH_EFFECTS}")
+        if game.is_level(str(spec)):
+            return game.scene_of(str(spec), effects)
+        return meshfile.load(spec, effects if effects is not None else ("camera_motion",))
     if effects is not None:
         bad = [e for e in effects if e not in EFFECTS]
         if bad:
@@ -74,7 +89,7 @@ def strip(scene, size=128, factor=4, frame=12, spp=16, split="test"):
     ±2 LR pixels full scale), linear depth (near dark); linear RGB in [0,1].
     ``scene``: a ``Scene`` or anything ``resolve`` takes."""
 
-    scene = scene if isinstance(scene, Scene) else resolve(scene)
+    scene = scene if isinstance(scene, (Scene, MeshScene)) else resolve(scene)
     r = VideoRenderer(scene, (size, size), (factor,), spp)
     v = r.video(split, 0, frame + 1)
     x = v[f"x{factor}"]
@@ -159,6 +174,8 @@ def main(argv=None):
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
     sub.add_parser("list", help="the built-in scenes and their effects")
+    sub.add_parser("levels", help="the installed game levels (data/fetch_game_assets.sh) "
+                   "and the effects each declares")
 
     def scene_args(q, many=True):
         q.add_argument("--scene", nargs="+" if many else 1,
@@ -215,6 +232,13 @@ def _dispatch(args):
         for name in SCENES:
             print(f"{name:14s} {', '.join(get_scene(name).effects)}")
         print("random_<seed> (the randomized family: python -m jtus.sim show --random SEED)")
+        return 0
+    if args.cmd == "levels":
+        for m in game.levels():
+            split = ("val" if m in game.VAL_LEVELS else "test" if m in game.TEST_LEVELS
+                     else "train")
+            effects = game.scene_of(game.PREFIX + m).effects
+            print(f"{game.PREFIX + m:20s} {split:5s} {', '.join(effects)}")
         return 0
     if args.cmd == "show":
         print(to_json(_scenes_from(args)[0]))

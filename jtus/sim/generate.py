@@ -25,7 +25,8 @@ from tqdm import tqdm
 from jtus.data.dataset import SPLITS, write_root_attrs, write_video
 from jtus.files import atomic_path
 from jtus.sampling.jitter import VARIETY
-from jtus.sim import randomized
+from jtus.sim import game, randomized
+from jtus.sim.mesh import MESH_EFFECTS, MeshScene
 from jtus.sim.paths import video_seed
 from jtus.sim.suite import NAMES as SCENES
 from jtus.sim.suite import get as get_scene
@@ -92,13 +93,40 @@ def _presets():
         "hdr-tiny": Preset((32, 32), (2, 4), 4, 1, {
             "train": (_random("train", 3), 1, 8), "val": (_random("val", 1), 1, 8),
             "test": (_random("test", 1) + ("objects",), 1, 8)}, VARIETY, _HDR),
+        # game content: OpenArena's levels (data/fetch_game_assets.sh), whole levels
+        # held out for validation and test, each level with the effects its content has
+        "game": Preset((128, 128), (2, 4), 16, 1, {
+            "train": (_levels(game.TRAIN_LEVELS), 4, 16),
+            "val": (_levels(game.VAL_LEVELS), 2, 16),
+            "test": (_levels(game.TEST_LEVELS), 2, 24)}, VARIETY),
     }
+
+
+def _levels(maps):
+    return tuple(game.PREFIX + m for m in maps)
+
+
+def scene_of(name, custom=None):
+    """The scene a preset names: a JSON-declared one, a game level, or a built-in."""
+    if custom and name in custom:
+        return custom[name]
+    if game.is_level(name):
+        return game.scene_of(name)
+    return get_scene(name)
+
+
+def _with_effects(scene, add):
+    if isinstance(scene, MeshScene):
+        return scene if not add else dataclasses.replace(
+            scene, effects=tuple(e for e in MESH_EFFECTS if e in scene.effects or e in add))
+    return with_effects(scene, add)
 
 
 _HDR = ("hdr", "specular", "emissive_flicker")
 
 
-PRESET_NAMES = ("tiny", "default", "long", "paper", "diverse", "diverse-tiny", "hdr", "hdr-tiny")
+PRESET_NAMES = ("tiny", "default", "long", "paper", "diverse", "diverse-tiny", "hdr", "hdr-tiny",
+                "game")
 
 
 def preset(name) -> Preset:
@@ -133,9 +161,8 @@ def _render_into(fh, p: Preset, videos, custom, progress):
     renderers = {}
     for split, name, i, length in videos:
         if name not in renderers:
-            scene = custom[name] if custom and name in custom else get_scene(name)
-            renderers[name] = VideoRenderer(with_effects(scene, p.effects), p.size, p.factors,
-                                            p.spp, p.spp_match)
+            renderers[name] = VideoRenderer(_with_effects(scene_of(name, custom), p.effects),
+                                            p.size, p.factors, p.spp, p.spp_match)
         r = renderers[name]
         jit, phase = video_jitter(p.jitters, name, split, i)
         video = r.video(split, i, length, progress=progress, jitter=jit, jitter_phase=phase)

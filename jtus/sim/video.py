@@ -9,7 +9,8 @@ import numpy as np
 
 from jtus.frame import Frame
 from jtus.sampling import halton, jitter_sequence
-from jtus.sim import paths, render
+from jtus.sim import paths, render, walk
+from jtus.sim.mesh import MeshRenderer, MeshScene
 from jtus.sim.scene import Scene
 
 
@@ -34,7 +35,9 @@ CHUNK = 16384
 
 
 class VideoRenderer:
-    """Renders the frames of a scene; compiles the scene's renderer once."""
+    """Renders the frames of a scene; compiles the scene's renderer once. A
+    ``MeshScene`` is cast by ``jtus.sim.mesh.MeshRenderer`` along ``jtus.sim.walk``'s
+    camera paths; everything else (jitter, targets, holds) is the same."""
 
     def __init__(self, scene: Scene, size, factors=(2, 4), spp=16, spp_match=1):
         self.scene = scene
@@ -49,11 +52,28 @@ class VideoRenderer:
         # Every call renders CHUNK rays (the last chunk padded): one compilation per
         # scene serves the inputs of every factor and the target.
         self.chunk = min(CHUNK, self.H * self.W)
-        self._render = render.make_renderer(scene, motion=True)
+        if isinstance(scene, MeshScene):
+            self._mesh = MeshRenderer(scene)
+        else:
+            self._mesh = None
+            self._render = render.make_renderer(scene, motion=True)
+
+    def timeline(self, split, index, length):
+        """The per-frame states of one video."""
+        if self._mesh is not None:
+            return walk.timeline(self._mesh, split, index, length, self.W / self.H)
+        return paths.timeline(self.scene, split, index, length, self.W / self.H)
 
     def _cast(self, state: paths.FrameState, xy):
         """Render normalized screen points ``[N,2]`` in fixed-size chunks: a dict of
         ``[N,...]`` numpy arrays."""
+        if self._mesh is not None:
+            out = {}
+            for i in range(0, len(xy), self.chunk):
+                part = self._mesh.cast(state, xy[i:i + self.chunk], self.pixel_angle(state))
+                for k, v in part.items():
+                    out.setdefault(k, []).append(v)
+            return {k: np.concatenate(v) for k, v in out.items()}
         n, c = len(xy), self.chunk
         pad = -n % c
         xy = np.concatenate([np.asarray(xy, np.float32), np.full((pad, 2), 0.5, np.float32)])
@@ -121,7 +141,7 @@ class VideoRenderer:
         of ``color``, ``depth``, ``motion``, ``jitter``; ``exposure [T]`` too with ``hdr``.
         ``jitter`` names the sequence
         (``jtus.sampling.jitter_sequence``); frame t uses element ``t + jitter_phase``."""
-        states = paths.timeline(self.scene, split, index, length, self.W / self.H)
+        states = self.timeline(split, index, length)
         out = {"target": [], "reset": [], "exposure": [],
                **{f"x{f}": {"color": [], "depth": [], "motion": [], "jitter": []}
                   for f in self.factors}}
@@ -166,7 +186,7 @@ def static_hold(scene: Scene, size, factor, jitter, length, spp=16, split="test"
     holds); its size and spp then apply."""
 
     r = renderer or VideoRenderer(scene, (size, size), (factor,), spp)
-    st = paths.timeline(scene, split, 0, 1, 1.0)[0]
+    st = r.timeline(split, 0, 1)[0]
     target = r.target(st)
     seq = jitter_sequence(jitter, factor).astype(np.float32)
     cache, cols = {}, []
