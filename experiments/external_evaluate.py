@@ -24,9 +24,10 @@ def main():
     p.add_argument("--models", nargs="+", default=["jau", "tus", "shipped"])
     p.add_argument("--data", default="data/external")
     p.add_argument("--name", default="external")
+    p.add_argument("--factors", type=int, nargs="+", default=[4, 2], choices=(2, 4))
     args = p.parse_args()
     rows, data = [], {}
-    for f in (4, 2):
+    for f in args.factors:
         entries = loading.load_all(args.models, f)
         per_clip, pooled = evaluate_clips(entries, f, args.data)
         for clip, summaries in [*per_clip.items(), ("all", pooled)]:

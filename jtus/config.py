@@ -127,6 +127,12 @@ PRESETS = {
 # 1 and an exposure per frame; the model runs on tone-mapped pre-exposed colour
 PRESETS["hdr"] = dataclasses.replace(PRESETS["diverse"], dataset="data/hdr.h5",
                                      data_preset="hdr", model_overrides=(("hdr", True),))
+# game content (docs/weights.md): the diverse recipe on OpenArena's levels (data preset
+# game), meant to start from the shipped weights at a lower rate:
+#   python -m jtus.train --preset game --init-from jtus/weights/dlctus-x4.msgpack
+PRESETS["game"] = dataclasses.replace(PRESETS["diverse"], dataset="data/game.h5",
+                                      data_preset="game", lr=3e-4, warmup_steps=100,
+                                      epochs=20)
 PRESETS["hdr-tiny"] = dataclasses.replace(PRESETS["tiny"], dataset="data/hdr-tiny.h5",
                                           data_preset="hdr-tiny",
                                           model_overrides=(("hdr", True),))

@@ -75,7 +75,8 @@ def validate(frame: Frame, factor: int | None = None, time_major: bool = False,
 
 
 def _check_values(frame: Frame):
-    """No NaN or Inf, exposures > 0, jitter inside the pixel (concrete arrays only)."""
+    """No NaN or Inf, colour >= 0, device depth in [0, 1], exposures > 0, jitter inside
+    the pixel (concrete arrays only)."""
     for name in ("color", "depth", "motion", "jitter"):
         arr = np.asarray(getattr(frame, name))
         if not np.all(np.isfinite(arr)):
@@ -87,6 +88,14 @@ def _check_values(frame: Frame):
             bad = int(np.size(e) - np.count_nonzero(np.isfinite(e) & (e > 0)))
             raise ValueError("exposure: expected finite values > 0 (the multiplier that "
                              f"pre-exposes HDR colour); {bad} are not")
+    color, depth = np.asarray(frame.color), np.asarray(frame.depth)
+    if np.any(color < 0):
+        raise ValueError(f"color: {int(np.sum(color < 0))} negative values (expected linear "
+                         "RGB >= 0)")
+    if np.any((depth < 0) | (depth > 1)):
+        raise ValueError(f"depth: {int(np.sum((depth < 0) | (depth > 1)))} values outside "
+                         "[0, 1] (expected D3D device depth; convert others with "
+                         "jtus.data.conventions.depth_to_device)")
     jit = np.asarray(frame.jitter)
     if np.any((jit < 0) | (jit >= 1)):
         raise ValueError("jitter: expected values in [0, 1) (offset inside the LR pixel); "

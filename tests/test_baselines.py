@@ -192,7 +192,7 @@ def test_counting_samples_gives_each_pixel_the_mean_of_its_samples():
     seq = sampling.jitter_sequence("halton8", f)
     jit = np.stack([seq[t % len(seq)] for t in range(T)]).astype(np.float32)[:, None]
     noise = rng.normal(0, 0.05, size=(T, 1, 4, 4, 3)).astype(np.float32)
-    color = img[None] + noise  # the "samples" differ per frame
+    color = np.maximum(img[None] + noise, 0.0)  # the "samples" differ per frame (>= 0)
     frames = Frame(jnp.asarray(color), jnp.full((T, 1, 4, 4, 1), 0.5), jnp.zeros((T, 1, 4, 4, 2)),
                    jnp.asarray(jit), jnp.asarray(np.arange(T)[:, None] == 0))
     model = models.build("tus-mean", f)

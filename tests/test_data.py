@@ -288,7 +288,8 @@ def test_import_exr_refuses_bad_names_outputs_and_sidecars(tmp_path, capsys):
     before = out.read_bytes()
     cases = [(["--sidecar", str(good), "--out", str(out)], "exists"),
              (["--sidecar", str(good), "--out", str(tmp_path)], "is a folder"),
-             (["--sidecar", str(good), "--out", str(tmp_path / "y.h5"), "--name", "a/b"], "--name")]
+             (["--sidecar", str(good), "--out", str(tmp_path / "y.h5"), "--name", "a/b"], "--name"),
+             (["--sidecar", str(good), "--out", str(tmp_path / "y.h5"), "--name", "."], "--name")]
     for text, msg in (('{"motion_y_up": "no"}', "motion_y_up: expected true or false"),
                       ('{"color": ["R", "G"]}', "color: expected 3 channel names"),
                       ('{"near": "0.1"}', "near: expected a finite number"),
@@ -312,6 +313,10 @@ def test_import_exr_refuses_bad_names_outputs_and_sidecars(tmp_path, capsys):
         assert msg in err, (args, err)
     assert out.read_bytes() == before and not (tmp_path / "y.h5").exists()
     assert data_cli.main(base + ["--sidecar", str(good), "--out", str(out), "--force"]) == 0
+    (lr / "frame0099.exr").mkdir()  # a folder with an EXR's name
+    assert data_cli.main(base + ["--sidecar", str(good), "--out", str(tmp_path / "y.h5")]) == 2
+    assert "expected an EXR file, got a folder" in capsys.readouterr().err
+    assert not (tmp_path / "y.h5").exists()
 
 
 def test_videos_record_their_depth_planes(tiny_data):

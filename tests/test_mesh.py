@@ -305,3 +305,32 @@ def test_walks_keep_off_walls_and_hold_still():
     assert np.abs(eyes[:, [0, 2]]).max() < 5.0 - 0.2  # walls at 5
     steps = np.linalg.norm(np.diff(eyes, axis=0), axis=-1)
     assert (steps == 0).sum() >= walk.HOLD - 1 and steps.max() > 0.1
+
+
+def test_game_levels_are_held_out_whole():
+    """No level is in two splits, and variants of one level share their split; the game
+    preset draws each split from its own levels."""
+    from jtus.sim import game
+    from jtus.sim.generate import preset
+
+    splits = {"train": game.TRAIN_LEVELS, "val": game.VAL_LEVELS, "test": game.TEST_LEVELS}
+    seen = [m for ms in splits.values() for m in ms]
+    assert len(seen) == len(set(seen))
+    for family in game.VARIANTS:
+        assert len({s for s, ms in splits.items() for m in family if m in ms}) == 1, family
+    p = preset("game")
+    for split, maps in splits.items():
+        assert p.splits[split][0] == tuple(game.PREFIX + m for m in maps)
+    assert len(p.splits["train"][0]) * p.splits["train"][1] >= 200
+
+
+@pytest.mark.skipif(not __import__("jtus.sim.game").sim.game.pk3_files(),
+                    reason="game assets not fetched (bash data/fetch_game_assets.sh)")
+def test_an_openarena_level_renders_with_the_effects_its_content_has():
+    from jtus.sim import game
+
+    sc = game.scene_of("oa:oa_dm1")
+    assert {"object_motion", "transparency", "camera_cut"} <= set(sc.effects)
+    v = VideoRenderer(sc, (32, 32), (4,), 4).video("test", 0, 3)
+    assert np.isfinite(v["target"]).all() and v["target"].std() > 0.01
+    assert np.isfinite(v["x4"]["motion"]).all()

@@ -78,7 +78,7 @@ def _parser():
 
 
 def _import(args):
-    if not re.fullmatch(r"[A-Za-z0-9_.-]+", args.name):
+    if not re.fullmatch(r"[A-Za-z0-9_.-]+", args.name) or set(args.name) == {"."}:
         raise ValueError(f"--name: expected letters, digits, '_', '-' or '.', got "
                          f"{args.name!r}")
     check_out_file(args.out, args.force, kind="an .h5 file")

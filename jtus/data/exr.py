@@ -160,6 +160,9 @@ def _frames(folder):
         raise ValueError(f"{folder}: no .exr files")
     out = {}
     for f in files:
+        if not os.path.isfile(os.path.join(folder, f)):
+            raise ValueError(f"{os.path.join(folder, f)}: expected an EXR file, got a folder "
+                             "or another non-file")
         digits = re.findall(r"\d+", os.path.splitext(f)[0])
         if not digits:
             raise ValueError(f"{os.path.join(folder, f)}: no frame number in the name")

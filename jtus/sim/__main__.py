@@ -218,6 +218,9 @@ def main(argv=None):
     c.add_argument("--size", type=int, default=192)
     c.add_argument("--frames", type=int, default=4)
     c.add_argument("--out", help="write the table as JSON here")
+    c.add_argument("--level", metavar="MAP",
+                   help="measure a game level's mesh effects instead (oa_dm4, ...): no "
+                        "FLOP count, the mesh path is not XLA")
     args = p.parse_args(argv)
     cli.sigterm_as_exit()
     try:
@@ -279,25 +282,46 @@ def effect_costs(seed=3, size=192, frames=4, factors=(2, 4), spp=16):
     return out
 
 
+def mesh_effect_costs(level, size=128, frames=3, factors=(2, 4), spp=16):
+    """``effect_costs`` for game level ``level`` over ``MESH_EFFECTS`` (FLOPs None:
+    the mesh path is numpy and Embree). The first frame of each row is not timed."""
+    rows = [("none", ())] + [(e, (e,)) for e in MESH_EFFECTS] + [("all", MESH_EFFECTS)]
+    out = []
+    for label, effects in tqdm(rows, desc="effects", leave=False):
+        scene = game.scene_of(game.PREFIX + level, effects)
+        r = VideoRenderer(scene, (size, size), factors, spp)
+        r.video("train", 0, 1)
+        t0 = time.perf_counter()
+        r.video("train", 0, frames)
+        out.append((label, effects, None, (time.perf_counter() - t0) / frames))
+    return out
+
+
 def cost_table(rows):
     """The Markdown table of ``effect_costs`` rows, with a header row."""
     flops0, sec0 = rows[0][2], rows[0][3]
     lines = ["| effects | FLOP per point (XLA) | x no effect | ms per frame | x no effect |",
              "| --- | --- | --- | --- | --- |"]
-    lines += [f"| {label} | {fl:,.0f} | {fl / flops0:.2f} | {sec * 1e3:.0f} | "
+    lines += [f"| {label} | {'-' if fl is None else f'{fl:,.0f}'} | "
+              f"{'-' if fl is None else f'{fl / flops0:.2f}'} | {sec * 1e3:.0f} | "
               f"{sec / sec0:.2f} |" for label, _, fl, sec in rows]
     return "\n".join(lines)
 
 
 def _cost(args):
     machine = timing.hardware_line()
-    rows = effect_costs(args.seed, args.size, args.frames)
-    print(f"random_{args.seed}, {args.size}x{args.size}, inputs at 2x and 4x + 16-spp target, "
+    if args.level:
+        rows = mesh_effect_costs(args.level, args.size, args.frames)
+        what = f"{game.PREFIX}{args.level}"
+    else:
+        rows = effect_costs(args.seed, args.size, args.frames)
+        what = f"random_{args.seed}"
+    print(f"{what}, {args.size}x{args.size}, inputs at 2x and 4x + 16-spp target, "
           f"{args.frames} frames ({machine})")
     print(cost_table(rows))
     if args.out:
         with atomic_path(args.out) as tmp, open(tmp, "w") as fh:
-            json.dump({"seed": args.seed, "size": args.size, "frames": args.frames,
+            json.dump({"scene": what, "size": args.size, "frames": args.frames,
                        "machine": machine,
                        "rows": [{"effects": label, "flops_per_point": fl,
                                  "ms_per_frame": sec * 1e3}

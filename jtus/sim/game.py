@@ -110,8 +110,11 @@ def _motion(m, center):
                   period=max(2 * max(dist, 0.1) / max(speed, 1e-3) + 2 * num("wait", 2), 2.0))
 
 
-# Whole levels are held out: variants of one level (oa_bases3, oa_bases3cl...) share
-# a split. Every other level the archives hold trains.
+# Whole levels are held out: variants of one level (VARIANTS) share a split.
+VARIANTS = (("oa_bases3", "oa_bases3cl", "oa_bases3plus3"), ("hydronex", "hydronex2"),
+            ("am_underworks", "am_underworks2"), ("kaos", "kaos2"), ("oa_ctf2", "oa_ctf2old"),
+            ("ps37ctf", "ps37ctf2"), ("islanddm", "islandctf"), ("czest1dm", "czest1tourney"),
+            ("oa_koth1", "oa_koth2"), ("czest2ctf", "czest3ctf"))
 VAL_LEVELS = ("oa_dm6", "oacmpdm7", "czest1dm", "czest1tourney", "fan")
 TEST_LEVELS = ("oa_dm1", "oa_dm4", "oacmpdm3", "oacmpctf2", "delta", "suspended", "wrackdm17",
                "ps9ctf")

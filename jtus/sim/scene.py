@@ -189,9 +189,11 @@ def _check_value(where, v, default):
     """A JSON value against its field's default: numbers finite (not strings, bools or
     null), integers whole, strings strings, vectors of the default's length of numbers
     (``()`` allowed where the default is empty)."""
-    if default is None:  # a required field without a default: name, effects, kind
-        ok = isinstance(v, str) or (isinstance(v, list) and all(isinstance(x, str) for x in v))
-        what = "a string or a list of strings"
+    if default is None and where.endswith(".effects"):  # required, no default
+        ok = isinstance(v, list) and all(isinstance(x, str) for x in v)
+        what = "a list of effect names"
+    elif default is None:  # name, kind
+        ok, what = isinstance(v, str) and bool(v), "a non-empty string"
     elif isinstance(default, bool):
         ok, what = isinstance(v, bool), "true or false"
     elif isinstance(default, int):
