@@ -246,6 +246,7 @@ def gltf_file(tmp_path_factory):
     block = trimesh.creation.box([1, 1, 1])
     block.apply_translation([0.5, 0.55, -1.0])
     scene = trimesh.Scene([floor, block])
+    scene.camera_transform = trimesh.transformations.translation_matrix([0.2, 1.0, 3.0])
     path = d / "room.glb"
     scene.export(str(path))
     return path
@@ -254,6 +255,9 @@ def gltf_file(tmp_path_factory):
 def test_gltf_file_loads_with_its_texture_and_renders(gltf_file):
     sc = meshfile.load(gltf_file)
     assert sum(len(p.faces) for p in sc.parts) == 24 and len(sc.materials) == 2
+    eye, yaw = sc.spawns[0]  # the file's camera: at (0.2, 1, 3), looking along -z
+    np.testing.assert_allclose(eye, [0.2, 1.0, 3.0], atol=1e-9)
+    assert yaw == pytest.approx(np.pi / 2)
     tex, = [m.levels[0] for m in sc.materials if m.levels[0].shape[0] > 2]
     assert tex.shape[:2] == (32, 32) and tex[..., :3].max() > 20 * tex[..., :3].min()
     r = VideoRenderer(sc, (32, 32), (2, 4), spp=4)

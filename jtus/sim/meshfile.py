@@ -4,8 +4,9 @@ scenes, read with trimesh.
 Every mesh node becomes triangles in world space with its UVs, normals and material:
 the base-colour image (or factor, or an OBJ material's diffuse image or colour), glTF's
 ``alphaMode`` ``MASK`` (an alpha-tested cutout at ``alphaCutoff``) or ``BLEND`` (an
-alpha-blended layer). The scene is lit by a sun and ambient light. Cameras start on a
-ring inside the scene's bounds at eye height, looking across it.
+alpha-blended layer). The scene is lit by a sun and ambient light. Cameras start at
+the file's camera, if it has one, and on a ring inside the scene's bounds at eye
+height, looking across it. Not read yet: glTF animations, normal and roughness maps.
 
 Conventions converted here: glTF and OBJ are y-up and right-handed like jtus (metres
 assumed for OBJ); trimesh gives texture coordinates with v up from the image's bottom
@@ -126,6 +127,11 @@ def load(path, effects=("camera_motion",), name=None, sun=(-0.4, -1.0, -0.3)):
     extent = hi - lo
     if not extent.max() > 0:
         raise ValueError(f"scene: {path} has no extent (all vertices at one point)")
+    spawns = _ring(lo, hi)
+    if scene.has_camera:  # the file's own camera first: glTF cameras look along -z
+        pose = np.asarray(scene.camera_transform, float)
+        fwd = -pose[:3, 2]
+        spawns.insert(0, (pose[:3, 3].copy(), float(np.arctan2(-fwd[2], fwd[0]))))
     return MeshScene(name=name or path.stem, effects=tuple(effects), parts=[part],
-                     materials=mats, spawns=_ring(lo, hi), sun=tuple(sun),
+                     materials=mats, spawns=spawns, sun=tuple(sun),
                      speed=max(0.02, 0.004 * float(extent.max())))
