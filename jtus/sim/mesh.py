@@ -27,7 +27,6 @@ barycentrics, so motion vectors are exact by construction (``tests/test_mesh.py`
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 
@@ -490,6 +489,3 @@ def _project(cam: Camera, x, direction=False):
     sy = (q @ cam.up) / (z * cam.tan_half[1])
     return np.stack([(sx + 1) / 2, (1 - sy) / 2], -1)
 
-
-def pixel_angle(tan_half_y, height_hr, spp_match=1):
-    return 2.0 * float(tan_half_y) / height_hr / math.sqrt(spp_match)
