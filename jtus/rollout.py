@@ -78,18 +78,24 @@ def _body(step, params, remat):
     return lambda state, frame: fn(params, state, frame)
 
 
-def _check(frames, check):
-    """The API boundary: reject malformed or non-finite inputs with a clear error.
-    Skipped when ``check`` is False or inside a trace (jitted hot loops)."""
+def _check(frames, check, state=None):
+    """The API boundary: reject malformed or non-finite inputs with a clear error, and a
+    state whose batch is not the frames' (it would broadcast silently). Skipped when
+    ``check`` is False or inside a trace (jitted hot loops)."""
     if check and not any(isinstance(x, jax.core.Tracer)
-                         for x in jax.tree_util.tree_leaves(frames)):
+                         for x in jax.tree_util.tree_leaves((frames, state))):
         validate(frames, time_major=True, check_finite=True)
+        batch = np.shape(frames.color)[1]
+        for leaf in jax.tree_util.tree_leaves(state):
+            if np.ndim(leaf) >= 1 and np.shape(leaf)[0] != batch:
+                raise ValueError(f"state: expected a batch of {batch} (the frames'), got a "
+                                 f"state array of shape {tuple(np.shape(leaf))}")
 
 
 def outputs(step, params, state, frames, *, remat=False, unroll=1, check=True):
     """Scan ``step`` over ``frames``; returns ``(outs [T,B,H,W,3], final state)``.
     ``check``: validate concrete inputs first (NaN/Inf, shapes); see ``_check``."""
-    _check(frames, check)
+    _check(frames, check, state)
     body = _body(step, params, remat)
 
     def f(s, frame):
@@ -119,7 +125,7 @@ def metrics(step, params, state, frames, targets, metric_fn, *, unroll=1, check=
     ``metric_fn(out, target, prev_out, prev_target, has_prev, frame) -> pytree``
     (the previous frame's output and target are carried, for temporal metrics);
     returns ``(per-frame metrics stacked over T, final state)``; no outputs kept."""
-    _check(frames, check)
+    _check(frames, check, state)
     body = _body(step, params, False)
 
     def f(c, xs):

@@ -425,3 +425,17 @@ def test_reverse_time_backward_equals_autodiff_float64(x64):
     for a, b in zip(leaves((g1, aux1)), leaves((g0, aux0))):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-14)
     assert max(float(jnp.abs(x).max()) for x in leaves(g0)) > 1e-3  # a gradient to compare
+
+
+def test_a_state_of_another_batch_than_the_frames_is_refused():
+    """A B=1 state with B=2 frames would broadcast through the step silently."""
+    frames, _ = seqdata.sequence(T=3, B=2, h=8, w=8, factor=4)
+    frames = jax.tree_util.tree_map(jnp.asarray, frames)
+    model = dlctus.make(dlctus.Config(factor=4))
+    params = model.init(jax.random.PRNGKey(0))
+    one = jax.tree_util.tree_map(lambda x: x[0, :1], frames)
+    with pytest.raises(ValueError, match="state: expected a batch of 2"):
+        rollout.outputs(model.step, params, model.init_state(one), frames)
+    two = jax.tree_util.tree_map(lambda x: x[0], frames)
+    outs, _ = rollout.outputs(model.step, params, model.init_state(two), frames)
+    assert outs.shape[:2] == (3, 2)
