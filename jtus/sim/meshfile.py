@@ -62,6 +62,16 @@ def _ring(lo, hi):
     return spawns
 
 
+def _camera(scene):
+    """The file's own camera as a start (none when it has none): glTF cameras look
+    along their -z."""
+    if not scene.has_camera:
+        return []
+    pose = np.asarray(scene.camera_transform, float)
+    fwd = -pose[:3, 2]
+    return [(pose[:3, 3].copy(), float(np.arctan2(-fwd[2], fwd[0])))]
+
+
 def _material(material, fallback):
     """A jtus ``Material`` of a trimesh material: its image and alpha mode."""
     mode = str(getattr(material, "alphaMode", "OPAQUE") or "OPAQUE").upper()
@@ -127,11 +137,6 @@ def load(path, effects=("camera_motion",), name=None, sun=(-0.4, -1.0, -0.3)):
     extent = hi - lo
     if not extent.max() > 0:
         raise ValueError(f"scene: {path} has no extent (all vertices at one point)")
-    spawns = _ring(lo, hi)
-    if scene.has_camera:  # the file's own camera first: glTF cameras look along -z
-        pose = np.asarray(scene.camera_transform, float)
-        fwd = -pose[:3, 2]
-        spawns.insert(0, (pose[:3, 3].copy(), float(np.arctan2(-fwd[2], fwd[0]))))
     return MeshScene(name=name or path.stem, effects=tuple(effects), parts=[part],
-                     materials=mats, spawns=spawns, sun=tuple(sun),
+                     materials=mats, spawns=_camera(scene) + _ring(lo, hi), sun=tuple(sun),
                      speed=max(0.02, 0.004 * float(extent.max())))
