@@ -34,6 +34,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from jtus.sim.mesh import srgb_to_linear
+
 UNIT = 0.0254  # metres per Quake unit (an inch, as id's tools assume)
 SURF_SKY, SURF_NODRAW = 0x4, 0x80
 _LUMPS = 17
@@ -246,7 +248,7 @@ def load_level(data: bytes, name="level", shaders=None, patch_level=6):
                  vcolor=(a[:, 10:13] / 255.0).astype(np.float32), faces=faces_arr,
                  face_texture=np.array(ftex, np.int32), face_lightmap=np.array(flm, np.int32),
                  face_model=np.array(fmod, np.int32), textures=[t[0] for t in texs],
-                 shaders=shaders, lightmaps=decode_lightmaps(lm), spawns=_spawns(ents),
+                 shaders=shaders, lightmaps=decode_lightmaps(lm / 255.0), spawns=_spawns(ents),
                  movers=_movers(ents, models))
 
 
@@ -315,10 +317,9 @@ def _movers(ents, models):
 
 
 def decode_lightmaps(lm):
-    """Quake's overbright sRGB-coded lightmaps ``[K,128,128,3] uint8`` as linear light
-    (x2 overbright, then decoded; values past 1 stay: bright light is bright)."""
-    x = lm.astype(np.float32) / 255.0 * 2.0
-    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4).astype(np.float32)
+    """Quake's overbright sRGB-coded light (lightmaps or vertex colours, in [0,1]) as
+    linear light (x2 overbright, then decoded; values past 1 stay: bright is bright)."""
+    return srgb_to_linear(np.asarray(lm, np.float32) * 2.0)
 
 
 class Archive:

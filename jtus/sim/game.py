@@ -168,7 +168,7 @@ def level_scene(map_name, effects=("camera_motion",), root=None, name=None, patc
         index[int(t)] = len(mats)
         mats.append(_material(arc, level.textures[t], shaders, cache))
     fmat = np.array([index[int(t)] for t in level.face_texture], np.int64)
-    light = bsp.decode_lightmaps((level.vcolor * 255).astype(np.uint8)[None])[0]
+    light = bsp.decode_lightmaps(level.vcolor)
     parts = []
     groups = [("world", np.isin(level.face_model, list(level.movers), invert=True))]
     groups += [(k, level.face_model == k) for k in sorted(level.movers)]

@@ -30,7 +30,7 @@ import dataclasses
 
 import numpy as np
 
-from jtus.data.conventions import FAR, NEAR
+from jtus.data.conventions import FAR, NEAR, depth_to_device
 from jtus.sim.paths import Camera
 
 MESH_EFFECTS = ("camera_motion", "camera_cut", "object_motion", "alpha_cutout",
@@ -258,6 +258,19 @@ class MeshRenderer:
         return out
 
     # -- visibility -----------------------------------------------------------------
+    def _into_rest(self, k, o, d, pose):
+        """Rays ``(o, d)`` in part ``k``'s rest space under ``pose`` (float32, as Embree
+        takes them): ``R^T (o - pivot - t) + pivot``, ``R^T d``."""
+        r, tr = pose
+        pv = np.asarray(self.parts[k].motion.pivot, float)
+        return ((o - pv - tr) @ r + pv).astype(np.float32), (d @ r).astype(np.float32)
+
+    def _from_rest(self, k, p, pose):
+        """Rest-space points ``p`` of part ``k`` in the world under ``pose``."""
+        r, tr = pose
+        pv = np.asarray(self.parts[k].motion.pivot, float)
+        return (p - pv) @ r.T + pv + tr
+
     def nearest(self, o, d, poses):
         """Nearest hit over all parts: t [N] (inf: none), part [N], face [N], bary [N,2]."""
         n = len(o)
@@ -265,11 +278,8 @@ class MeshRenderer:
         part = np.zeros(n, np.int64)
         face = np.zeros(n, np.int64)
         bary = np.zeros((n, 2), np.float32)
-        for k, (bvh, (r, tr)) in enumerate(zip(self.bvh, poses)):
-            pv = np.asarray(self.parts[k].motion.pivot, float)
-            ol = (o - pv - tr) @ r + pv       # R^T (o - pivot - t) + pivot
-            dl = d @ r
-            res = bvh.run(ol.astype(np.float32), dl.astype(np.float32), output=1)
+        for k, (bvh, pose) in enumerate(zip(self.bvh, poses)):
+            res = bvh.run(*self._into_rest(k, o, d, pose), output=1)
             hit = res["primID"] >= 0
             t = np.where(hit, res["tfar"], np.inf)
             better = t < best
@@ -281,11 +291,8 @@ class MeshRenderer:
 
     def _occluded(self, o, d, dist, poses):
         out = np.zeros(len(o), bool)
-        for k, (bvh, (r, tr)) in enumerate(zip(self.bvh, poses)):
-            pv = np.asarray(self.parts[k].motion.pivot, float)
-            ol = ((o - pv - tr) @ r + pv).astype(np.float32)
-            dl = (d @ r).astype(np.float32)
-            res = bvh.run(ol, dl, dists=dist.astype(np.float32))
+        for k, (bvh, pose) in enumerate(zip(self.bvh, poses)):
+            res = bvh.run(*self._into_rest(k, o, d, pose), dists=dist.astype(np.float32))
             out |= np.asarray(res) != -1
         return out
 
@@ -382,9 +389,8 @@ class MeshRenderer:
             if len(sel):  # surfaces that may let the ray through: look at their texels
                 rows = idx[sel]
                 sub = self._attributes(part[sel], face[sel], bary[sel], state.poses)
-                cos = np.maximum(np.abs((sub["n"] * dn[rows]).sum(-1)), 0.25)
-                lod = np.log2(np.maximum(tt[sel] * dlen[rows] * pixel_angle / cos
-                                         * sub["density"], 1e-9))
+                lod = _lod(tt[sel] * dlen[rows], sub["n"], dn[rows], sub["density"],
+                           pixel_angle)
                 rgba = self._texture(sub, lod, state.seconds)
                 blend, test = self.mat_blend[mat[sel]], self.mat_test[mat[sel]]
                 cut = (test > 0) & (rgba[:, 3] < test)
@@ -425,8 +431,7 @@ class MeshRenderer:
             x = cam.eye + t[:, None] * d[idx]
             n = a["n"]
             n = np.where((n * dn[idx]).sum(-1, keepdims=True) > 0, -n, n)
-            cos = np.maximum(np.abs((n * dn[idx]).sum(-1)), 0.25)
-            lod = np.log2(np.maximum(t * dlen[idx] * pixel_angle / cos * a["density"], 1e-9))
+            lod = _lod(t * dlen[idx], n, dn[idx], a["density"], pixel_angle)
             rgba = self._texture(a, lod, state.seconds)
             lit = self.mat_lit[a["mat"]]
             light = self._light(a, x, n, dn[idx], state)
@@ -434,16 +439,14 @@ class MeshRenderer:
             if sc.has("specular"):
                 c = c + self._highlight(rgba, x, n, dn[idx], state)
             color[idx] = c
-            z = np.maximum(t, sc.near)
-            depth[idx, 0] = np.clip(sc.far / (sc.far - sc.near) * (1 - sc.near / z), 0, 1)
+            depth[idx, 0] = np.clip(depth_to_device(np.maximum(t, sc.near), "view", sc.near,
+                                                    sc.far), 0, 1)
             # where the surface point was: move it back with its part, then project
             part = final["part"][idx]
             x_prev = np.empty_like(x)
             for k in np.unique(part):
                 m = part == k
-                pv = np.asarray(self.parts[k].motion.pivot, float)
-                r, tr = state.prev_poses[k]
-                x_prev[m] = (a["p_rest"][m] - pv) @ r.T + pv + tr
+                x_prev[m] = self._from_rest(k, a["p_rest"][m], state.prev_poses[k])
             motion[idx] = _project(prev, x_prev) - xy[idx]
         color = front + trans * color
         hdr = sc.has("hdr")
@@ -467,6 +470,14 @@ class MeshRenderer:
         lobe = np.maximum((bump * h).sum(-1), 0) ** 48 * np.clip(2 * lum, 0, 1)
         gain = sc.highlight_gain if sc.has("hdr") else 1.0
         return (0.6 * gain * lobe)[:, None] * np.array([1.0, 0.95, 0.9])
+
+
+def _lod(dist, n, dn, density, pixel_angle):
+    """Mip level of hits at distance ``dist`` along ``dn`` on surfaces with normal ``n``
+    and ``density`` texels per metre: log2 of the footprint (the sample's angle times
+    the distance, over the cosine, at most 4x stretched) in texels."""
+    cos = np.maximum(np.abs((n * dn).sum(-1)), 0.25)
+    return np.log2(np.maximum(dist * pixel_angle / cos * density, 1e-9))
 
 
 def _clamped_bilinear(img, uv):
