@@ -269,31 +269,30 @@ def effect_costs(seed=3, size=192, frames=4, factors=(2, 4), spp=16):
     (compiling excluded) for the inputs at every factor and the target."""
 
     base = random_scene(seed, effects=EFFECTS)
-    rows = [("none", ())] + [(e, (e,)) for e in EFFECTS] + [("all", EFFECTS)]
-    out = []
-    for label, effects in tqdm(rows, desc="effects", leave=False):
-        scene = dataclasses.replace(base, effects=effects)
-        r = VideoRenderer(scene, (size, size), factors, spp)
-        r.video("train", 0, 1)  # compile
-        t0 = time.perf_counter()
-        r.video("train", 0, frames)
-        out.append((label, effects, render.flops_per_point(scene),
-                    (time.perf_counter() - t0) / frames))
-    return out
+    return _timed_rows(EFFECTS, lambda fx: dataclasses.replace(base, effects=fx), size,
+                       frames, factors, spp, render.flops_per_point)
 
 
 def mesh_effect_costs(level, size=128, frames=3, factors=(2, 4), spp=16):
     """``effect_costs`` for game level ``level`` over ``MESH_EFFECTS`` (FLOPs None:
-    the mesh path is numpy and Embree). The first frame of each row is not timed."""
-    rows = [("none", ())] + [(e, (e,)) for e in MESH_EFFECTS] + [("all", MESH_EFFECTS)]
+    the mesh path is numpy and Embree)."""
+    return _timed_rows(MESH_EFFECTS, lambda fx: game.scene_of(game.PREFIX + level, fx), size,
+                       frames, factors, spp, lambda scene: None)
+
+
+def _timed_rows(effects, scene_with, size, frames, factors, spp, flops):
+    """``(label, effects, flops(scene), seconds per frame)`` for no effect, each of
+    ``effects`` alone and all of them; the first frame of each row is not timed."""
+    rows = [("none", ())] + [(e, (e,)) for e in effects] + [("all", effects)]
     out = []
-    for label, effects in tqdm(rows, desc="effects", leave=False):
-        scene = game.scene_of(game.PREFIX + level, effects)
+    for label, fx in tqdm(rows, desc="effects", leave=False):
+        scene = scene_with(fx)
         r = VideoRenderer(scene, (size, size), factors, spp)
-        r.video("train", 0, 1)
+        r.video("train", 0, 1)  # compile (analytic scenes), warm caches
         t0 = time.perf_counter()
         r.video("train", 0, frames)
-        out.append((label, effects, None, (time.perf_counter() - t0) / frames))
+        seconds = (time.perf_counter() - t0) / frames
+        out.append((label, fx, flops(scene), seconds))
     return out
 
 
@@ -321,7 +320,8 @@ def _cost(args):
     print(cost_table(rows))
     if args.out:
         with atomic_path(args.out) as tmp, open(tmp, "w") as fh:
-            json.dump({"scene": what, "size": args.size, "frames": args.frames,
+            json.dump({"scene": what, "seed": None if args.level else args.seed,
+                       "size": args.size, "frames": args.frames,
                        "machine": machine,
                        "rows": [{"effects": label, "flops_per_point": fl,
                                  "ms_per_frame": sec * 1e3}
