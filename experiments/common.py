@@ -198,6 +198,38 @@ def runs_so_far(study, lr=LR):
 SYSTEMS = ("mlp", "kpn", "nsrr-fast", "nsrr")
 FACTORS = (4, 2)
 
+# the thesis's released checkpoints (for comparison only: never shipped, never trained
+# on), as its README names them, under a folder like ../shared/thesis
+THESIS = {4: os.path.join("MasterNet4x4", "modelMaster.pt"),
+          2: os.path.join("MasterNet2x2", "modelMaster_best.pt")}
+THESIS_DIR = os.path.join(ROOT, "..", "shared", "thesis")
+
+
+def thesis_path(factor, thesis_dir=THESIS_DIR):
+    """The thesis's released checkpoint at ``factor`` under ``thesis_dir``, or None."""
+    path = os.path.join(thesis_dir, THESIS[factor]) if thesis_dir else ""
+    return path if path and os.path.exists(path) else None
+
+
+def game_finetune(factor, root=ROOT):
+    """``(path, rows, config)`` of the DLCTUS fine-tune on the ``game`` data at
+    ``factor``: its exported weights (``experiments/weights/dlctus-game-x<f>``) or its
+    committed checkpoint (``experiments/checkpoints/game-x<f>/``); None if neither."""
+    for path, log, cfg in (
+            (f"experiments/weights/dlctus-game-x{factor}.msgpack",
+             f"experiments/weights/dlctus-game-x{factor}-training.csv",
+             f"experiments/weights/dlctus-game-x{factor}.json"),
+            (f"experiments/checkpoints/game-x{factor}/checkpoint.msgpack",
+             f"experiments/checkpoints/game-x{factor}/metrics.csv",
+             f"experiments/checkpoints/game-x{factor}/config.json")):
+        if all(os.path.exists(os.path.join(root, q)) for q in (path, log, cfg)):
+            with open(os.path.join(root, log)) as fh:
+                rows = list(csv.DictReader(fh))
+            with open(os.path.join(root, cfg)) as fh:
+                config = json.load(fh)
+            return path, rows, config.get("config", config)
+    return None
+
 
 def summarize(rows, epochs_planned):
     """One run's figures from its ``metrics.csv`` rows."""

@@ -13,9 +13,11 @@ Families (each video from a fresh state; none trained or tuned on):
 - ``random``: the randomized scenes' unseen test seeds of ``data/diverse.h5``;
 - ``handmade``: the hand-made scenes with varied jitter, test split of the same file;
 - ``external``: the independent renderer's clips (Mitsuba 3, ``data/external``, made by
-  ``python experiments/external/render_mitsuba.py``), every frame of the three pooled.
+  ``python experiments/external/render_mitsuba.py``), every frame of the three pooled;
+- ``game``: the held-out test levels of ``data/game.h5`` (``--preset game``).
 
-Systems: JAU and TUS (nothing to train), the shipped DLCTUS (``jtus/weights/``) and each
+Systems: JAU and TUS (nothing to train), the thesis's released model (``--thesis``), the
+shipped DLCTUS (``jtus/weights/``), its fine-tune on the game data (``dlctus-game``) and each
 comparison system at its newest training on the ``diverse`` data: the exported weights
 of a finished run (``experiments/weights/<model>-x<f>.msgpack``) or, for a run still in
 progress, its committed checkpoint (``experiments/checkpoints/<model>-diverse-x<f>/``),
@@ -35,8 +37,8 @@ import csv
 import json
 import os
 
-from common import (ROOT, SYSTEMS, command_line, evaluate_clips, find, summarize, weights_path,
-                    write)
+from common import (ROOT, SYSTEMS, THESIS_DIR, command_line, evaluate_clips, find, game_finetune,
+                    summarize, thesis_path, weights_path, write)
 
 from jtus import evaluate, loading
 
@@ -46,6 +48,7 @@ FAMILIES = {
     "random": ("randomized scenes, unseen seeds", "data/diverse.h5", "random_*"),
     "handmade": ("hand-made scenes, varied jitter", "data/diverse.h5", "[!r]*"),
     "external": ("independent renderer (Mitsuba 3)", "data/external", None),
+    "game": ("held-out game levels (OpenArena)", "data/game.h5", None),
 }
 
 
@@ -56,20 +59,15 @@ def budget(cfg, rows):
             "seconds": s["seconds"]}
 
 
-# the thesis's released checkpoints (for comparison only: never shipped, never trained
-# on), as its README names them, under --thesis
-THESIS = {4: os.path.join("MasterNet4x4", "modelMaster.pt"),
-          2: os.path.join("MasterNet2x2", "modelMaster_best.pt")}
-
 
 def systems(factor, thesis_dir=None):
     """``[(label, spec or None, status, budget or None)]`` for every system at ``factor``;
     the thesis's released model as a row when ``thesis_dir`` holds it."""
     out = [("jau", "jau", "-", None), ("tus", "tus", "-", None)]
     if thesis_dir:
-        path = os.path.join(thesis_dir, THESIS[factor])
-        out.append(("thesis", f"thesis={path}" if os.path.exists(path) else None,
-                    "released (Sponza, 200 epochs at crop 256)" if os.path.exists(path)
+        path = thesis_path(factor, thesis_dir)
+        out.append(("thesis", f"thesis={path}" if path else None,
+                    "released (Sponza, 200 epochs at crop 256)" if path
                     else f"not found under {thesis_dir}", None))
     with open(os.path.join(ROOT, "jtus", "weights", f"dlctus-x{factor}.json")) as fh:
         cfg = json.load(fh)
@@ -77,6 +75,14 @@ def systems(factor, thesis_dir=None):
         rows = list(csv.DictReader(fh))
     out.append(("dlctus", f"dlctus={loading.shipped_path(factor)}", "shipped",
                 budget(cfg, rows)))
+    game = game_finetune(factor)
+    if game is not None:
+        path, rows, cfg = game
+        status = ("shipped weights fine-tuned on the game data" if path.startswith(
+            "experiments/weights/") else
+            f"game fine-tune, epoch {len(rows)} of {cfg['epochs']} (unfinished)")
+        out.append(("dlctus-game", f"dlctus-game={os.path.join(ROOT, path)}", status,
+                    budget(cfg, rows)))
     for m in SYSTEMS:
         got = find(m, factor, ROOT)
         if got is None:
@@ -128,10 +134,16 @@ def targets(results):
                 a, b = psnr(f, fam, m), psnr(f, fam, "jau")
                 if a is not None and b is not None:
                     out.append((f"{m} - JAU > 0, {fam}, {f}x", a - b, a > b))
-    for fam in FAMILIES:
-        a, b = psnr(4, fam, "nsrr"), psnr(4, fam, "tus")
-        if a is not None and b is not None:
-            out.append((f"NSRR - TUS > 0, {fam}, 4x", a - b, a > b))
+    for f in (4, 2):
+        for fam in FAMILIES:
+            for m in ("kpn", "nsrr"):
+                a, b = psnr(f, fam, m), psnr(f, fam, "tus")
+                if a is not None and b is not None:
+                    out.append((f"{m.upper()} - TUS > 0, {fam}, {f}x", a - b, a > b))
+            for m in ("dlctus", "dlctus-game"):
+                a, b = psnr(f, fam, m), psnr(f, fam, "thesis")
+                if a is not None and b is not None:
+                    out.append((f"{m} - thesis > 0, {fam}, {f}x", a - b, a > b))
     return out
 
 
@@ -141,9 +153,10 @@ def readme_table(results):
     fams = [fam for fam in FAMILIES if any(fam in results.get(f, {}) for f in ("4", "2"))]
     factors = [f for f in ("4", "2") if f in results]
     found = set(lab for f in factors for fam in fams for lab in results[f].get(fam, {}))
-    order = ("jau", "tus", "thesis", "dlctus") + SYSTEMS
+    order = ("jau", "tus", "thesis", "dlctus", "dlctus-game") + SYSTEMS
     labels = [lab for lab in order if lab in found] + sorted(found - set(order))
-    short = {"random": "random scenes", "handmade": "hand-made", "external": "Mitsuba 3"}
+    short = {"random": "random scenes", "handmade": "hand-made", "external": "Mitsuba 3",
+             "game": "game levels"}
     head = [f"{f}x {short[fam]}" for f in factors for fam in fams]
     lines = ["| system | " + " | ".join(head) + " |", "| --- " * (len(head) + 1) + "|"]
     for lab in labels:
@@ -178,7 +191,7 @@ def main(argv=None):
     p.add_argument("--only", nargs="+", metavar="SYSTEM",
                    help="evaluate only these systems; the other rows come from the existing "
                         "result.json")
-    p.add_argument("--thesis", default=os.path.join(ROOT, "..", "shared", "thesis"),
+    p.add_argument("--thesis", default=THESIS_DIR,
                    help="folder of the thesis's released checkpoints (a row when present; "
                         "'' for none)")
     p.add_argument("--readme-only", action="store_true",

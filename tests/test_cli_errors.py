@@ -231,3 +231,38 @@ def test_a_video_missing_an_array_is_named(tiny_data, tmp_path, capsys):
     _refused(capsys, evaluate.main, ["--dataset", str(bad), "--factor", "4", "--models",
                                      "jau", "--quiet", "--out", str(tmp_path / "e")],
              f"test/{name} lacks ['x4/motion']")
+
+
+def test_generate_and_import_budgets_are_checked_before_any_work(tmp_path, capsys,
+                                                                  monkeypatch):
+    """`data generate` and `data import-exr` work out the memory and disk they need from
+    the preset or from the EXR headers and the frame count, and refuse past what the
+    machine has before rendering or reading a pixel; ``--force`` goes on."""
+    from jtus import files
+    from jtus.data import __main__ as data_cli
+    from jtus.data import exr
+    from jtus.sim import generate
+
+    # the estimate tracks what a dataset takes: the game preset's 819 MB file (0.76 GiB)
+    assert generate.preset("game").budget(2)[1] / 2 ** 30 == pytest.approx(0.755, abs=0.01)
+    lr, hr = tmp_path / "lr", tmp_path / "hr"
+    lr.mkdir(), hr.mkdir()
+    for t in range(3):
+        exr.write_exr(lr / f"frame{t:04d}.exr", {c: np.zeros((8, 12), np.float32)
+                                                 for c in ("R", "G", "B", "Z", "mx", "my")})
+        exr.write_exr(hr / f"frame{t:04d}.exr", {c: np.zeros((32, 48), np.float32)
+                                                 for c in "RGB"})
+    mem, disk = exr.sequence_budget(str(lr), str(hr), 4)
+    assert (mem, disk) == (2 * 3 * (96 * 24 + 1536 * 12), 3 * (96 * 18 + 1536 * 6))
+    out = tmp_path / "out.h5"
+    monkeypatch.setattr(files, "available_memory", lambda: mem - 1)
+    imp = ["import-exr", "--input", str(lr), "--target", str(hr), "--factor", "4",
+           "--depth", "Z", "--motion", "mx,my", "--out", str(out)]
+    _refused(capsys, data_cli.main, imp, "import-exr needs about", "--force")
+    _refused(capsys, data_cli.main, ["generate", "--preset", "tiny", "--out", str(out),
+                                     "--quiet"], "generate --preset tiny needs", "--force")
+    monkeypatch.setattr(files, "available_memory", lambda: 2 ** 40)
+    monkeypatch.setattr(files.shutil, "disk_usage", lambda p: type("U", (), {"free": disk - 1}))
+    _refused(capsys, data_cli.main, imp, "writes about", "GiB free")
+    assert sorted(os.listdir(tmp_path)) == ["hr", "lr"]
+    assert data_cli.main(imp + ["--force"]) == 0 and out.exists()

@@ -167,7 +167,8 @@ def test_comparison_table_systems_and_targets():
     ct = seqdata.load_script("comparison_table")
     for f in (4, 2):
         rows = ct.systems(f)
-        assert [r[0] for r in rows] == ["jau", "tus", "dlctus", *ct.SYSTEMS]
+        game = ["dlctus-game"] if ct.game_finetune(f) else []
+        assert [r[0] for r in rows] == ["jau", "tus", "dlctus", *game, *ct.SYSTEMS]
         for label, spec, status, budget in rows:
             if spec is None:
                 assert budget is None and "not trained" in status
@@ -178,7 +179,7 @@ def test_comparison_table_systems_and_targets():
                 assert budget["steps"] > 0 and budget["seconds"] > 0
     psnr = lambda v: {"psnr": v}  # noqa: E731
     res = {"4": {"random": {"dlctus": psnr(30.0), "tus": psnr(28.0), "jau": psnr(27.0),
-                            "nsrr": psnr(27.5)},
+                            "nsrr": psnr(27.5), "thesis": psnr(29.75)},
                  "external": {"dlctus": psnr(22.0), "tus": psnr(22.5), "jau": psnr(21.0)}},
            "2": {"handmade": {"dlctus": psnr(33.4), "tus": psnr(32.0), "jau": psnr(31.0),
                               "mlp": psnr(31.5)}}}
@@ -188,7 +189,8 @@ def test_comparison_table_systems_and_targets():
                    "nsrr - JAU > 0, random, 4x": (0.5, True),
                    "DLCTUS - TUS >= 1.5 dB, handmade, 2x": (1.4, False),
                    "mlp - JAU > 0, handmade, 2x": (0.5, True),
-                   "NSRR - TUS > 0, random, 4x": (-0.5, False)}
+                   "NSRR - TUS > 0, random, 4x": (-0.5, False),
+                   "dlctus - thesis > 0, random, 4x": (0.25, True)}
 
 
 def test_readme_figure_takes_the_best_trained_system_on_validation(tmp_path):
@@ -303,3 +305,16 @@ def test_ablation_table_sets_each_gap_against_the_thesis():
     lines = ablations.against_thesis("theta", [{"variant": "L1", "psnr": 30.0},
                                                {"variant": "L_st-linear θ=0.25", "psnr": 29.9}])
     assert lines[-1] == "| L_st-linear θ=0.25 | -0.10 | - | - |"  # one seed: no spread
+
+
+def test_static_hold_fall_is_measured_from_the_best_of_the_last_frames():
+    """experiments/static_hold.py: the fall is the best PSNR of the last 12 frames minus
+    the last frame's (0 while a model keeps converging), the gain last minus first; a
+    hold shorter than the window is refused."""
+    sh = seqdata.load_script("static_hold")
+    curve = [20.0] * 12 + [21.0, 22.0, 23.0, 22.5] + [22.25] * 8
+    assert sh.fall_and_gain(curve) == pytest.approx((0.75, 2.25))
+    assert sh.fall_and_gain(np.linspace(20, 24, 24)) == pytest.approx((0.0, 4.0))
+    assert sh.fall_and_gain([30.0] * 11 + [29.0] * 13)[0] == pytest.approx(0.0)
+    with pytest.raises(ValueError, match="at least 12 frames"):
+        sh.fall_and_gain([1.0] * 11)

@@ -200,7 +200,29 @@ def clip_turntable(t):
     return cam, shapes, light
 
 
+def clip_hold(t):
+    """Glyph wall, brick floor, thin posts: the camera glides for 16 frames, then nothing
+    moves but the jitter (frames 16-39): the convergence test of a temporal upsampler."""
+    u = min(t, 15)
+    cam = look_at((-0.9 + 0.05 * u, 1.3, 3.0 - 0.02 * u), (0.1 + 0.03 * u, 1.1, 0.0))
+    shapes = {
+        "wall": ("rectangle", affine((0, 1.5, -0.5), 0, (2.5, 1.5, 1)), "glyphs", 1.5),
+        "floor": ("floor", affine((0, 0, 0), 0, (4, 1, 4)), "bricks", 4.0),
+        "box": ("cube", affine((-0.8, 0.3, 0.4), 0.6, (0.3, 0.3, 0.3)), "noise", 1.0),
+    }
+    for i in range(6):
+        shapes[f"post{i}"] = ("cylinder", ((0.2 + 0.25 * i, 0.0, 0.8), (0.2 + 0.25 * i, 1.2, 0.8),
+                                           0.008 + 0.003 * (i % 2)), "white", 1.0)
+    light = {"dir": (-0.5, -1.0, -0.6), "irradiance": 2.2}
+    return cam, shapes, light
+
+
 CLIPS = {"library": clip_library, "fence": clip_fence, "turntable": clip_turntable}
+# a clip kept apart from the three above (its own --out): the static hold of
+# experiments/static_hold.py, 40 frames of which the last 24 hold still
+HOLD_CLIPS = {"hold": clip_hold}
+ALL_CLIPS = {**CLIPS, **HOLD_CLIPS}
+HOLD_FRAMES = 40
 
 
 # ---------------------------------------------------------------- Mitsuba
@@ -262,8 +284,8 @@ def _rigid(shapes, name):
 
 def render_frame(mi, clip, t, jitters, cache):
     """The target and, per factor, the jittered 1-spp input with depth and motion."""
-    cam, shapes, light = CLIPS[clip](t)
-    pcam, pshapes, _ = CLIPS[clip](t - 1)
+    cam, shapes, light = ALL_CLIPS[clip](t)
+    pcam, pshapes, _ = ALL_CLIPS[clip](t - 1)
     scene = build_scene(mi, cam, shapes, light, cache)
     # the sky is no emitter (see build_scene): it is composited where rays miss, in the
     # target by the film's coverage (alpha: the box-filtered fraction of hits)
@@ -393,8 +415,11 @@ def main():
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", default="data/external")
-    p.add_argument("--clips", nargs="+", default=list(CLIPS), choices=list(CLIPS))
-    p.add_argument("--frames", type=int, default=FRAMES)
+    p.add_argument("--clips", nargs="+", default=list(CLIPS), choices=list(ALL_CLIPS),
+                   help="the test clips (default), or hold (experiments/static_hold.py: "
+                        "render it into its own --out, e.g. data/external-hold)")
+    p.add_argument("--frames", type=int, default=None,
+                   help=f"frames per clip (default {FRAMES}; hold: {HOLD_FRAMES})")
     p.add_argument("--no-import", action="store_true")
     args = p.parse_args()
     if "DRJIT_LIBLLVM_PATH" not in os.environ and _newest_llvm():
@@ -402,8 +427,9 @@ def main():
     import mitsuba as mi
     mi.set_variant("llvm_ad_rgb")
     t0 = time.perf_counter()
+    frames = {c: args.frames or (HOLD_FRAMES if c in HOLD_CLIPS else FRAMES) for c in args.clips}
     for clip in args.clips:
-        worst = render_clip(mi, clip, os.path.join(args.out, "exr"), args.frames)
+        worst = render_clip(mi, clip, os.path.join(args.out, "exr"), frames[clip])
         if worst > 1e-4:
             raise SystemExit(f"{clip}: the projection used for the motion vectors disagrees "
                              f"with Mitsuba's camera by {worst:.2e} of the frame")
@@ -426,7 +452,7 @@ def main():
     with open(os.path.join(args.out, "render.json"), "w") as fh:
         json.dump({"mitsuba": mi.__version__, "drjit": drjit.__version__,
                    "llvm": os.environ.get("DRJIT_LIBLLVM_PATH"), "clips": args.clips,
-                   "frames": args.frames, "seconds": round(time.perf_counter() - t0)}, fh,
+                   "frames": frames, "seconds": round(time.perf_counter() - t0)}, fh,
                   indent=1)
     print(f"rendered {len(args.clips)} clips in {time.perf_counter() - t0:.0f} s",
           file=sys.stderr)

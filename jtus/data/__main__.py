@@ -18,7 +18,7 @@ import sys
 
 from jtus import cli
 from jtus.data import dataset, exr, nss
-from jtus.files import check_out_file
+from jtus.files import check_budget, check_out_file
 from jtus.sim import generate
 
 
@@ -33,6 +33,9 @@ def _parser():
     g.add_argument("--workers", type=int, default=generate.default_workers(),
                    help="rendering processes, one per core (default: every core this "
                         "process may use)")
+    g.add_argument("--force", action="store_true",
+                   help="go on past the memory or disk budget (an existing --out is "
+                        "always replaced, once the new file is complete)")
     i = sub.add_parser("import-exr", help="an EXR sequence into the HDF5 layout")
     i.add_argument("--input", required=True, help="folder of LR per-frame EXRs")
     i.add_argument("--target", required=True, help="folder of HR per-frame EXRs")
@@ -41,7 +44,8 @@ def _parser():
     i.add_argument("--sidecar", help="JSON with ImportSpec keys (flags below override it)")
     i.add_argument("--split", default="test", choices=dataset.SPLITS)
     i.add_argument("--name", default="video_00")
-    i.add_argument("--force", action="store_true", help="replace an existing --out")
+    i.add_argument("--force", action="store_true",
+                   help="replace an existing --out; go on past the memory or disk budget")
     i.add_argument("--color", help="comma-separated channel names, e.g. R,G,B")
     i.add_argument("--depth", help="depth channel name")
     i.add_argument("--motion", help="comma-separated motion channel names (x,y)")
@@ -89,6 +93,8 @@ def _import(args):
             "motion_negate": args.motion_negate, "depth_kind": args.depth_kind,
             "near": args.near, "far": args.far}
     spec = dataclasses.replace(spec, **{k: v for k, v in over.items() if v is not None})
+    check_budget(*exr.sequence_budget(args.input, args.target, args.factor), args.out,
+                 args.force, what="import-exr")
     exr.import_exr(args.input, args.target, args.factor, args.out, spec, args.split, args.name)
     print(f"wrote {args.out}")
 
@@ -134,6 +140,8 @@ def main(argv=None):
             check_out_file(args.out, kind="an .h5 file")
             if args.workers < 1:
                 raise ValueError(f"--workers: expected a positive integer, got {args.workers}")
+            check_budget(*generate.preset(args.preset).budget(args.workers), args.out,
+                         args.force, what=f"generate --preset {args.preset}")
             generate.generate(args.preset, args.out, progress=not args.quiet,
                               workers=args.workers)
             print(f"wrote {args.out}")

@@ -282,6 +282,31 @@ def _checked_exposure(exposure, n):
     return e.astype(np.float32)
 
 
+def _exr_size(path):
+    """``(height, width)`` from an EXR's header alone (its data window)."""
+    try:
+        with OpenEXR.File(os.fspath(path), header_only=True) as f:
+            lo, hi = (np.asarray(v) for v in f.header()["dataWindow"])
+    except Exception as e:  # OpenEXR raises several types for damaged files
+        raise ValueError(f"{path}: not a readable EXR file ({e})") from e
+    return int(hi[1] - lo[1] + 1), int(hi[0] - lo[0] + 1)
+
+
+def sequence_budget(input_dir, target_dir, factor):
+    """``(memory, disk)`` bytes of importing an EXR sequence, from the frame count and
+    the first frames' headers, before any pixel is read: ``load_sequence`` holds every
+    frame as float32 (input colour, depth and motion; target colour) and stacks them
+    (two copies at its peak); the dataset stores colours as float16, depth and motion
+    as float32."""
+    inputs, targets = _paired(input_dir, target_dir)
+    h, w = _exr_size(inputs[0])
+    hr = _exr_size(targets[0]) if targets[0] is not None else (h * factor, w * factor)
+    lr_px, hr_px, n = h * w, hr[0] * hr[1], len(inputs)
+    memory = 2 * n * (lr_px * 6 * 4 + hr_px * 3 * 4)
+    disk = n * (lr_px * (3 * 2 + 3 * 4) + (hr_px * 3 * 2 if targets[0] is not None else 0))
+    return memory, disk
+
+
 def load_sequence(input_dir, target_dir, factor, spec: ImportSpec = ImportSpec()):
     """Read an EXR sequence into the ``jtus.sim.video`` dict layout (one factor).
     ``target_dir`` None reads the inputs alone (``target`` is then absent)."""

@@ -40,7 +40,7 @@ from jtus.data.exr import linear_to_srgb
 from jtus.files import atomic_path, check_budget, check_out_file
 from jtus.sampling.jitter import VARIETY, jitter_sequence
 from jtus.sim import SCENES, from_json, game, get_scene, meshfile, random_scene, render, to_json
-from jtus.sim.generate import Preset, default_workers, generate, preset
+from jtus.sim.generate import Preset, default_workers, generate, preset, render_budget
 from jtus.sim.mesh import MESH_EFFECTS, MeshScene
 from jtus.sim.scene import EFFECTS, Scene
 from jtus.sim.video import VideoRenderer
@@ -123,19 +123,6 @@ def _check_out(path, force, ext):
 
 
 MAX_SIZE = 16384  # HR frame side: past this a single frame alone needs gigabytes
-
-
-def render_budget(size, factors, frames, videos, workers):
-    """``(memory, disk)`` bytes of rendering ``videos`` videos of ``frames`` square
-    ``size`` frames: each worker holds one video as float32 (target and every factor's
-    colour, depth and motion) plus a frame of render temporaries; the dataset stores
-    colour as float16, depth and motion as float32."""
-    px = size * size
-    lr = sum(px // (f * f) for f in factors)
-    per_frame = px * 3 * 4 + lr * 6 * 4
-    memory = workers * (frames * per_frame + 16 * px * 4 * 8)
-    disk = videos * frames * (px * 3 * 2 + lr * (3 * 2 + 3 * 4))
-    return memory, disk
 
 
 def _render(args):

@@ -53,6 +53,28 @@ class Preset:
     def total_frames(self):
         return sum(len(s) * n * t for s, n, t in self.splits.values())
 
+    def budget(self, workers=1):
+        """``(memory, disk)`` bytes of generating this preset (``render_budget``)."""
+        longest = max(t for _, _, t in self.splits.values())
+        mem, _ = render_budget(self.size[0], self.factors, longest, 1, workers,
+                               width=self.size[1])
+        _, disk = render_budget(self.size[0], self.factors, 1, self.total_frames(), 1,
+                                width=self.size[1])
+        return mem, disk
+
+
+def render_budget(size, factors, frames, videos, workers, width=None):
+    """``(memory, disk)`` bytes of rendering ``videos`` videos of ``frames`` frames of
+    ``size`` x ``width`` (square by default): each worker holds one video as float32
+    (target and every factor's colour, depth and motion) plus a frame of render
+    temporaries; the dataset stores colour as float16, depth and motion as float32."""
+    px = size * (width or size)
+    lr = sum(px // (f * f) for f in factors)
+    per_frame = px * 3 * 4 + lr * 6 * 4
+    memory = workers * (frames * per_frame + 16 * px * 4 * 8)
+    disk = videos * frames * (px * 3 * 2 + lr * (3 * 2 + 3 * 4))
+    return memory, disk
+
 
 def _random(split, count):
     return tuple(randomized.name_of(s) for s in randomized.split_seeds(split, count))

@@ -1,0 +1,167 @@
+"""Static holds on held-out content: does a temporal upsampler converge when nothing moves
+but the jitter? (``hard_cases.py`` holds a built-in scene for hundreds of frames under
+every jitter sequence; this script takes the held-out families.)
+
+    python experiments/external/render_mitsuba.py --clips hold --out data/external-hold
+    python experiments/static_hold.py
+    python experiments/static_hold.py --factors 4 --models tus mine=runs/game-x{f}/checkpoint.msgpack
+
+Models (default): TUS, the shipped DLCTUS, its fine-tune on the game data and the
+thesis's released model (``--thesis``), where present; ``{f}`` in a model's path is
+replaced by the factor. Two families, both held out:
+
+- ``mitsuba``: the independent renderer's ``hold`` clip (16 frames of camera glide, then
+  24 frames where only the jitter moves), imported like the other Mitsuba clips;
+- ``game``: the first frame of each held-out game test level (``jtus.sim.game``),
+  held still for 24 frames by ``jtus.sim.video.static_hold`` (needs
+  ``bash data/fetch_game_assets.sh``; skipped with a note without it).
+
+Per model, family and factor, PSNR per frame over the hold (the game levels averaged
+frame by frame). ``fall``: the best PSNR among the last 12 frames minus the last frame's
+(0 for a model that keeps converging; the target is at most 0.1 dB); ``gain``: the last
+frame minus the hold's first. Writes ``docs/results/<name>/`` (``result.md``,
+``result.json``, ``hold_x<f>.png``). Jitter: the thesis's Halton(2,3) cycle of 16.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+import jax
+import jax.numpy as jnp
+import matplotlib
+import numpy as np
+from common import THESIS_DIR, game_finetune, out_dir, thesis_path, write
+from tqdm import tqdm
+
+from jtus import evaluate, loading
+from jtus.sim import game
+from jtus.sim.video import VideoRenderer, static_hold
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+HOLD = 24      # frames held still
+WINDOW = 12    # the frames the fall is measured over
+MITSUBA_MOVING = 16  # the hold clip's frames before it holds (render_mitsuba.clip_hold)
+
+
+def default_models(factor, thesis_dir=THESIS_DIR):
+    """TUS, the shipped DLCTUS, the game fine-tune and the thesis's model, where present."""
+    out = ["tus", "shipped"]
+    if game_finetune(factor):
+        out.append(f"dlctus-game={game_finetune(factor)[0]}")
+    if thesis_path(factor, thesis_dir):
+        out.append(f"thesis={thesis_path(factor, thesis_dir)}")
+    return out
+
+
+def fall_and_gain(curve, window=WINDOW):
+    """``(fall, gain)`` of a PSNR curve over a hold: the best of the last ``window``
+    frames minus the last, and the last minus the first."""
+    curve = np.asarray(curve, float)
+    if curve.ndim != 1 or len(curve) < window:
+        raise ValueError(f"curve: expected at least {window} frames, got shape {curve.shape}")
+    return float(curve[-window:].max() - curve[-1]), float(curve[-1] - curve[0])
+
+
+def mitsuba_curves(entries, factor, root):
+    path = os.path.join(root, f"hold-x{factor}.h5")
+    if not os.path.exists(path):
+        raise SystemExit(f"{path} is missing: python experiments/external/render_mitsuba.py "
+                         f"--clips hold --out {root}")
+    per_frame, _ = evaluate.evaluate(entries, path, factor, progress=False)
+    return {e.label: per_frame[e.label]["psnr"][MITSUBA_MOVING:] for e in entries}
+
+
+def game_holds(factors, size, levels):
+    """``{factor: [(Frame, targets), ...]}``: one hold per level, each level's target
+    rendered once for every factor."""
+    holds = {f: [] for f in factors}
+    for name in tqdm(levels, desc="game holds"):
+        scene = game.scene_of(game.PREFIX + name)
+        r = VideoRenderer(scene, (size, size), tuple(factors), 16)
+        for f in factors:
+            holds[f].append(static_hold(scene, size, f, "thesis", HOLD, renderer=r))
+    return holds
+
+
+def game_curves(entries, factor, holds):
+    curves = {e.label: [] for e in entries}
+    for frames, targets in holds:
+        frames, targets = jax.tree_util.tree_map(jnp.asarray, (frames, targets))
+        for e in entries:
+            m = evaluate.video_metrics(e.model, e.params, frames, targets, factor)
+            curves[e.label].append(m["psnr"])
+    return {lab: np.mean(np.stack(c), 0) for lab, c in curves.items()}, \
+        {lab: max(fall_and_gain(c)[0] for c in cs) for lab, cs in curves.items()}
+
+
+def plot(curves_by_family, factor, path):
+    fams = list(curves_by_family)
+    fig, axes = plt.subplots(1, len(fams), figsize=(5 * len(fams), 3.6), squeeze=False)
+    for ax, fam in zip(axes[0], fams):
+        for lab, c in curves_by_family[fam].items():
+            ax.plot(np.arange(len(c)), c, label=lab)
+        ax.axvspan(len(c) - WINDOW - 0.5, len(c) - 0.5, color="0.9", zorder=0)
+        ax.set_title(f"{fam}, {factor}x (shaded: the last {WINDOW} frames)")
+        ax.set_xlabel("frame of the hold")
+        ax.set_ylabel("PSNR (dB)")
+        ax.grid(alpha=0.3)
+    axes[0][-1].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--models", nargs="+", default=None,
+                   help="LABEL=PATH or built-in names (default: see above)")
+    p.add_argument("--thesis", default=THESIS_DIR,
+                   help="folder of the thesis's released checkpoints ('' for none)")
+    p.add_argument("--factors", type=int, nargs="+", default=[4, 2], choices=(2, 4))
+    p.add_argument("--mitsuba", default="data/external-hold")
+    p.add_argument("--size", type=int, default=128, help="game holds: frame size")
+    p.add_argument("--levels", nargs="+", default=list(game.TEST_LEVELS))
+    p.add_argument("--name", default="static-hold")
+    args = p.parse_args()
+    bad = [lv for lv in args.levels if lv not in game.TEST_LEVELS + game.VAL_LEVELS]
+    if bad:
+        p.error(f"--levels: {bad} are training levels; a hold is measured on held-out ones")
+    have_game = os.path.isdir(game.assets_dir())
+    holds = game_holds(args.factors, args.size, args.levels) if have_game else {}
+    rows, data = [], {}
+    for f in args.factors:
+        specs = args.models or default_models(f, args.thesis)
+        entries = loading.load_all([s.replace("{f}", str(f)) for s in specs], f)
+        families = {"mitsuba": (mitsuba_curves(entries, f, args.mitsuba), None)}
+        if have_game:
+            families["game"] = game_curves(entries, f, holds[f])
+        for fam, (curves, worst) in families.items():
+            for lab, c in curves.items():
+                fall, gain = fall_and_gain(c)
+                w = "" if worst is None else f"{worst[lab]:.2f}"
+                rows.append(f"| {f}x | {fam} | {lab} | {c[0]:.2f} | {c[-1]:.2f} | {gain:+.2f} "
+                            f"| {fall:.2f} | {w} |")
+                data.setdefault(str(f), {}).setdefault(fam, {})[lab] = {
+                    "psnr": [float(v) for v in c], "fall": fall, "gain": gain,
+                    "worst_level_fall": None if worst is None else worst[lab]}
+        plot({fam: c for fam, (c, _) in families.items()}, f,
+             os.path.join(out_dir(args.name), f"hold_x{f}.png"))
+    table = ("| factor | family | model | first frame (dB) | last frame (dB) | gain (dB) | "
+             f"fall over the last {WINDOW} (dB) | worst level's fall (dB) |\n"
+             "| --- | --- | --- | --- | --- | --- | --- | --- |\n" + "\n".join(rows))
+    note = (f"Holds of {HOLD} frames. mitsuba: the `hold` clip's frames "
+            f"{MITSUBA_MOVING}-{MITSUBA_MOVING + HOLD - 1}; game: the mean curve over the "
+            f"levels {', '.join(args.levels)} at {args.size}x{args.size}, 16-spp targets. "
+            "fall: best of the last frames minus the last (target <= 0.1 dB).")
+    if not have_game:
+        note += " Game holds skipped: no assets (bash data/fetch_game_assets.sh)."
+    write(args.name, table, data, note=note)
+
+
+if __name__ == "__main__":
+    main()
