@@ -1,12 +1,15 @@
 """The README's picture: what temporal up-sampling gets right or wrong, at a size one
-can see. Four hard cases, each a 128x128 crop of a test video of a built-in scene
-rendered here (``jtus.sim``, test split, so no training video), shown enlarged:
+can see. Four hard cases and a game level, each a 128x128 crop of a test video rendered here (``jtus.sim``, test split, so no training video), shown enlarged:
 
 - thin geometry: ``fence_pan`` (a fence under a panning camera);
 - fine texture: ``moire_dolly`` (high-frequency texture under a dolly);
 - disocclusion: ``objects`` (moving objects uncover the background);
 - static hold: ``textures`` held still (``jtus.sim.video.static_hold``): the steady
-  state of an unmoving image under the jitter cycle.
+  state of an unmoving image under the jitter cycle;
+- game level: a held-out game test level from ``data/game.h5`` (``--game-data``;
+  OpenArena's textures and lightmaps through the mesh renderer, 128x128, so the crop
+  is the whole frame): of the test videos, the one whose last reference frame has the
+  most detail (mean absolute Laplacian of the luminance); left out without that file.
 
 Columns: the input (nearest-enlarged), TUS, DLCTUS (shipped weights), the best
 comparison system (``--best``: by default the one with the highest PSNR on the held-out
@@ -39,17 +42,20 @@ from common import ROOT, weights_path, write
 
 from jtus import loading, metrics, rollout, sampling, sim
 from jtus.frame import Frame
+from jtus.data.dataset import Dataset
+from jtus.sim.generate import scene_of
 from jtus.sim.video import static_hold
 
 CASES = (("thin geometry", "fence_pan", "detail"), ("fine texture", "moire_dolly", "detail"),
          ("disocclusion", "objects", "disocclusion"), ("static hold", "textures", "hold"))
+
 CROP = 128
 
 
 def clip(scene_name, size, factor, frames):
     """``(Frame [T,1,...], targets [T,1,H,W,3])`` of test video 0 of a built-in scene,
     or its static hold."""
-    scene = sim.get_scene(scene_name)
+    scene = scene_of(scene_name)
     if scene_name == "textures":
         return static_hold(scene, size, factor, "thesis", frames)
     v = sim.render_video(scene, "test", 0, frames, size=(size, size), factors=(factor,))
@@ -71,6 +77,28 @@ def _best_window(score, crop):
     return int(y), int(x)
 
 
+def detail(ref):
+    """Absolute Laplacian of the luminance of ``ref [H,W,3]`` (0 on the border)."""
+    lum = _luma(ref)
+    lap = np.zeros_like(lum)
+    lap[1:-1, 1:-1] = np.abs(4 * lum[1:-1, 1:-1] - lum[:-2, 1:-1] - lum[2:, 1:-1]
+                             - lum[1:-1, :-2] - lum[1:-1, 2:])
+    return lap
+
+
+def game_video(path, factor, split="test"):
+    """``(name, Frame [T,1,...], targets [T,1,H,W,3])`` of the test video of the game
+    data whose last reference frame has the most detail."""
+    with Dataset(path) as ds:
+        names = ds.videos(split)
+        score = {n: float(detail(ds.file[f"{split}/{n}/target"][-1].astype(np.float32)).mean())
+                 for n in names}
+        name = max(score, key=score.get)
+        frames, targets = ds.video(split, name, factor)
+        scene = ds.file[f"{split}/{name}"].attrs["scene"]
+    return f"{scene} ({name})", frames, targets
+
+
 def window(rule, frame, targets, factor):
     ref = targets[-1, 0]
     if rule == "disocclusion":
@@ -79,11 +107,7 @@ def window(rule, frame, targets, factor):
                                sampling.reproject_coords(mv, factor), "bilinear")
         score = np.abs(np.asarray(prev[0]) - ref).sum(-1)
     else:
-        lum = _luma(ref)
-        lap = np.zeros_like(lum)
-        lap[1:-1, 1:-1] = np.abs(4 * lum[1:-1, 1:-1] - lum[:-2, 1:-1] - lum[2:, 1:-1]
-                                 - lum[1:-1, :-2] - lum[1:-1, 2:])
-        score = lap
+        score = detail(ref)
     return _best_window(score, CROP)
 
 
@@ -100,6 +124,8 @@ def main(argv=None):
     p.add_argument("--frames", type=int, default=32)
     p.add_argument("--best", help="the comparison system's LABEL=PATH (default: "
                    "best_on_validation)")
+    p.add_argument("--game-data", default=os.path.join(ROOT, "data", "game.h5"),
+                   help="the game data, for the game row (left out when missing)")
     p.add_argument("--zoom", type=int, default=2, help="nearest enlargement of each crop")
     p.add_argument("--out", default=os.path.join(ROOT, "docs", "img", "readme_crops.png"))
     args = p.parse_args(argv)
@@ -111,8 +137,17 @@ def main(argv=None):
     entries = loading.load_all(["tus", "shipped", best], args.factor)
     labels = ["input"] + [e.label for e in entries] + ["reference"]
     grid, data, rows = [], [], []
-    for case, scene, rule in CASES:
-        frame, targets = clip(scene, args.size, args.factor, args.frames)
+    cases = list(CASES)
+    if os.path.exists(args.game_data):
+        cases.append(("game level", None, "detail"))
+    else:
+        print(f"no {args.game_data} (python -m jtus.data generate --preset game): the game "
+              "row is left out", flush=True)
+    for case, scene, rule in cases:
+        if scene is None:
+            scene, frame, targets = game_video(args.game_data, args.factor)
+        else:
+            frame, targets = clip(scene, args.size, args.factor, args.frames)
         y, x = window(rule, frame, targets, args.factor)
         ref = targets[-1, 0]
         lr = np.asarray(frame.color[-1, 0])
@@ -122,7 +157,7 @@ def main(argv=None):
         psnr = [float(metrics.psnr(jnp.asarray(c[None]), jnp.asarray(crops[-1][None]))[0])
                 for c in crops[:-1]]
         grid.append(crops)
-        data.append({"case": case, "scene": scene, "rule": rule, "frame": args.frames - 1,
+        data.append({"case": case, "scene": scene, "rule": rule, "frame": len(targets) - 1,
                      "window_yx": [y, x], "psnr": dict(zip(labels[:-1], psnr))})
         rows.append(f"| {case} | `{scene}` | ({y}, {x}) | " + " | ".join(f"{v:.2f}" for v in psnr)
                     + " |")
