@@ -1,5 +1,6 @@
 """The README's picture: what temporal up-sampling gets right or wrong, at a size one
-can see. Four hard cases and a game level, each a 128x128 crop of a test video rendered here (``jtus.sim``, test split, so no training video), shown enlarged:
+can see. Four hard cases and a game level, each a 128x128 crop of a test video
+rendered here (``jtus.sim``, test split, so no training video), shown enlarged:
 
 - thin geometry: ``fence_pan`` (a fence under a panning camera);
 - fine texture: ``moire_dolly`` (high-frequency texture under a dolly);

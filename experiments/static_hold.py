@@ -4,7 +4,8 @@ every jitter sequence; this script takes the held-out families.)
 
     python experiments/external/render_mitsuba.py --clips hold --out data/external-hold
     python experiments/static_hold.py
-    python experiments/static_hold.py --factors 4 --models tus mine=runs/game-x{f}/checkpoint.msgpack
+    python experiments/static_hold.py --factors 4 \\
+        --models tus mine=runs/game-x{f}/checkpoint.msgpack
 
 Models (default): TUS, the shipped DLCTUS, its fine-tune on the game data and the
 thesis's released model (``--thesis``), where present; ``{f}`` in a model's path is

@@ -338,3 +338,110 @@ def test_an_openarena_level_renders_with_the_effects_its_content_has():
     v = VideoRenderer(sc, (32, 32), (4,), 4).video("test", 0, 3)
     assert np.isfinite(v["target"]).all() and v["target"].std() > 0.01
     assert np.isfinite(v["x4"]["motion"]).all()
+
+
+def _animated_gltf(d, channels):
+    """A glTF written here: a textured back wall and a textured quad ``spinner`` at
+    (0.3, 0.2, -2) whose first animation has ``channels`` ({path: [K, width] values})
+    at key times 0, 1, 2 s. Returns the file's path."""
+    import base64
+    import json
+
+    trimesh = pytest.importorskip("trimesh")
+    from PIL import Image
+
+    y, x = np.mgrid[0:64, 0:64] / 63
+    img = Image.fromarray((np.stack([0.2 + 0.6 * x, 0.2 + 0.6 * y, 0.5 + 0 * x], -1)
+                           * 255).astype(np.uint8))
+    uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
+
+    def quad(half):
+        m = trimesh.Trimesh(np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]]) * half,
+                            [[0, 1, 2], [0, 2, 3]], process=False)
+        m.visual = trimesh.visual.TextureVisuals(uv=uv, image=img)
+        return m
+
+    sc = trimesh.Scene()
+    sc.add_geometry(quad(6.0), node_name="back", geom_name="back",
+                    transform=trimesh.transformations.translation_matrix([0, 0, -4]))
+    sc.add_geometry(quad(0.7), node_name="spinner", geom_name="spin",
+                    transform=trimesh.transformations.translation_matrix([0.3, 0.2, -2]))
+    files = sc.export(file_type="gltf")
+    h = json.loads(files.pop("model.gltf"))
+    node = next(i for i, n in enumerate(h["nodes"]) if n["name"] == "spinner")
+    del h["nodes"][node]["matrix"]
+    h["nodes"][node]["translation"] = [0.3, 0.2, -2.0]
+    arrays = [np.array([0.0, 1.0, 2.0], np.float32)] + [np.asarray(v, np.float32)
+                                                       for v in channels.values()]
+    blob = b"".join(a.tobytes() for a in arrays)
+    h["buffers"].append({"uri": "data:application/octet-stream;base64,"
+                         + base64.b64encode(blob).decode(), "byteLength": len(blob)})
+    samplers, chans, offset = [], [], 0
+    for k, a in enumerate(arrays):
+        h["bufferViews"].append({"buffer": len(h["buffers"]) - 1, "byteOffset": offset,
+                                 "byteLength": a.nbytes})
+        offset += a.nbytes
+        h["accessors"].append({"bufferView": len(h["bufferViews"]) - 1, "componentType": 5126,
+                               "count": len(a), "type": {1: "SCALAR", 3: "VEC3", 4: "VEC4"}[
+                                   1 if a.ndim == 1 else a.shape[1]]})
+        if k:
+            samplers.append({"input": len(h["accessors"]) - 1 - k, "output":
+                             len(h["accessors"]) - 1, "interpolation": "LINEAR"})
+    for k, path in enumerate(channels):
+        chans.append({"sampler": k, "target": {"node": node, "path": path}})
+    first_time = len(h["accessors"]) - len(arrays)
+    for smp in samplers:
+        smp["input"] = first_time
+    h["animations"] = [{"samplers": samplers, "channels": chans}]
+    for name, data in files.items():
+        (d / name).write_bytes(data)
+    path = d / "anim.gltf"
+    path.write_text(json.dumps(h))
+    return path
+
+
+def _quat_z(deg):
+    a = np.radians(deg) / 2
+    return [0.0, 0.0, np.sin(a), np.cos(a)]
+
+
+def test_gltf_animation_moves_its_node_rigidly_with_exact_motion(tmp_path):
+    """A glTF node's keyframed translation and rotation become its part's motion: at a
+    key time its triangles are where the key puts them (checked against trimesh's own
+    matrices), between keys rotation is slerped, and the previous frame cast at
+    p + motion shows the same texel. Scale channels are refused (not rigid)."""
+    trimesh = pytest.importorskip("trimesh")
+    tf = trimesh.transformations
+    keys_t = [[0.3, 0.2, -2.0], [0.5, 0.2, -2.0], [0.5, 0.4, -2.2]]
+    path = _animated_gltf(tmp_path, {"translation": keys_t,
+                                     "rotation": [_quat_z(0), _quat_z(40), _quat_z(80)]})
+    sc = meshfile.load(path)
+    assert "object_motion" in sc.effects and len(sc.parts) == 2
+    spin, = [p for p in sc.parts if p.motion.kind == "keyframes"]
+    rest = spin.position  # the node's own translation, no rotation
+    # keys at 0, 1, 2 s; the animation loops, so 2.25 s is 0.25 s
+    for t, (tr, deg) in [(1.0, (keys_t[1], 40)), (1.5, (np.mean(keys_t[1:], 0), 60)),
+                         (2.25, (np.average(keys_t[:2], 0, [3, 1]), 10))]:
+        r, d = spin.motion.pose(t)
+        local = rest - np.array([0.3, 0.2, -2.0])
+        want = tf.transform_points(local, tf.translation_matrix(tr)
+                                   @ tf.rotation_matrix(np.radians(deg), [0, 0, 1]))
+        np.testing.assert_allclose(rest @ r.T + d, want, atol=1e-6)
+    r = MeshRenderer(sc)
+    cam = look_at([0.1, 0.05, 1.0], [0.2, 0.1, -3.0], 0.9, 1.0)
+    prev = look_at([0.0, 0.0, 1.0], [0.1, 0.0, -3.0], 0.9, 1.0)
+    now, before = [p.motion.pose(0.8) for p in sc.parts], [p.motion.pose(0.7) for p in sc.parts]
+    xy = _screen(48, 48)
+    out = r.cast(_state(cam, prev, now, before), xy, 1e-5)
+    moved = xy + out["motion"]
+    inside = np.all((moved > 0.02) & (moved < 0.98), -1)
+    back = r.cast(_state(prev, prev, before, before), moved[inside], 1e-5)
+    err = np.abs(back["color"] - out["color"][inside]).max(-1)
+    assert np.abs(out["motion"]).max() > 0.01
+    assert np.mean(err < 1e-3) > 0.97 and np.median(err) < 1e-5, np.mean(err < 1e-3)
+    still = meshfile.load(path, effects=("camera_motion",))  # undeclared: held at rest
+    assert "object_motion" not in still.effects
+    (tmp_path / "s").mkdir()
+    bad = _animated_gltf(tmp_path / "s", {"scale": [[1, 1, 1], [2, 2, 2], [1, 1, 1]]})
+    with pytest.raises(ValueError, match="scale channel is not a rigid motion"):
+        meshfile.load(bad)

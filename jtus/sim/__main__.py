@@ -63,7 +63,7 @@ def resolve(spec, effects=None):
                                  f"{MESH_EFFECTS}")
         if game.is_level(str(spec)):
             return game.scene_of(str(spec), effects)
-        return meshfile.load(spec, effects if effects is not None else ("camera_motion",))
+        return meshfile.load(spec, effects)
     if effects is not None:
         bad = [e for e in effects if e not in EFFECTS]
         if bad:

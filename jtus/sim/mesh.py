@@ -140,6 +140,70 @@ class Motion:
         return np.eye(3), np.zeros(3)
 
 
+def _slerp(q0, q1, u):
+    """Unit quaternions (x, y, z, w) interpolated along the shorter arc."""
+    d = float(np.dot(q0, q1))
+    if d < 0:
+        q1, d = -q1, -d
+    if d > 0.9995:
+        q = q0 + u * (q1 - q0)
+    else:
+        a = np.arccos(d)
+        q = (np.sin((1 - u) * a) * q0 + np.sin(u * a) * q1) / np.sin(a)
+    return q / np.linalg.norm(q)
+
+
+def quat_matrix(q):
+    """The rotation matrix of a unit quaternion (x, y, z, w), glTF's order."""
+    x, y, z, w = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+@dataclasses.dataclass
+class Keyframes:
+    """A rigid motion from keyframes (a glTF node's animation), looping over its last
+    key time. The node's translation ``T(s)`` and rotation ``R(s)`` (linear and slerp
+    between keys, or held with ``step``) act between two fixed transforms: a rest-space
+    point p is at ``before @ [T(s) R(s)] @ after @ p`` (4x4, homogeneous), where
+    ``after`` takes the rest pose back into the node's frame and ``before`` is the
+    node's parent frame. ``translations`` / ``rotations``: ``[K,3]`` / ``[K,4]``
+    (x, y, z, w), or None where the node keeps its rest value (``rest_t``, ``rest_r``)."""
+    times: np.ndarray
+    translations: np.ndarray | None
+    rotations: np.ndarray | None
+    rest_t: np.ndarray
+    rest_r: np.ndarray
+    before: np.ndarray
+    after: np.ndarray
+    step: bool = False
+    kind: str = "keyframes"
+    pivot: tuple = (0.0, 0.0, 0.0)
+
+    def _at(self, seconds):
+        """Index of the key before ``seconds`` (looped) and the fraction past it."""
+        t = np.asarray(self.times, float)
+        span = t[-1]
+        s = (seconds % span) if span > 0 else 0.0
+        i = int(np.clip(np.searchsorted(t, s, side="right") - 1, 0, len(t) - 1))
+        if i == len(t) - 1 or self.step:
+            return i, 0.0
+        return i, float((s - t[i]) / (t[i + 1] - t[i]))
+
+    def pose(self, seconds):
+        i, u = self._at(seconds)
+        j = min(i + 1, len(self.times) - 1)
+        tr = self.rest_t if self.translations is None else \
+            (1 - u) * self.translations[i] + u * self.translations[j]
+        q = self.rest_r if self.rotations is None else \
+            _slerp(np.asarray(self.rotations[i], float), np.asarray(self.rotations[j], float), u)
+        m = np.eye(4)
+        m[:3, :3], m[:3, 3] = quat_matrix(q), tr
+        g = self.before @ m @ self.after
+        return g[:3, :3], g[:3, 3]
+
+
 @dataclasses.dataclass
 class Part:
     """One rigidly moving triangle mesh (rest-space positions)."""
