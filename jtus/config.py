@@ -56,6 +56,9 @@ class Config:
                                   # model and factor); the optimizer starts fresh
     test_videos: int = 0          # the final comparison: the first this many test videos
                                   # of each family; 0 = all
+    mix_dataset: str = ""         # a second dataset whose training videos give a share of
+    mix_fraction: float = 0.5     # each batch (rounded to whole crops); validation and the
+                                  # final comparison stay on ``dataset``
 
     def __post_init__(self):
         positive = ("factor", "seq_len", "batch", "crop", "epochs", "steps_per_epoch",
@@ -95,6 +98,12 @@ class Config:
                              f"{self.remat!r}")
         if not isinstance(self.test_videos, int) or self.test_videos < 0:
             raise ValueError(f"test_videos: expected an integer >= 0, got {self.test_videos!r}")
+        if not isinstance(self.mix_dataset, str):
+            raise ValueError(f"mix_dataset: expected a path or '', got {self.mix_dataset!r}")
+        if (not isinstance(self.mix_fraction, (int, float)) or isinstance(self.mix_fraction, bool)
+                or not 0 < self.mix_fraction < 1):
+            raise ValueError(f"mix_fraction: expected a fraction in (0, 1), got "
+                             f"{self.mix_fraction!r}")
         if self.loss not in losses.NAMES:
             raise ValueError(f"loss: expected one of {losses.NAMES}, got {self.loss!r}")
 
@@ -133,6 +142,10 @@ PRESETS["hdr"] = dataclasses.replace(PRESETS["diverse"], dataset="data/hdr.h5",
 PRESETS["game"] = dataclasses.replace(PRESETS["diverse"], dataset="data/game.h5",
                                       data_preset="game", lr=3e-4, warmup_steps=100,
                                       epochs=20)
+# game content mixed with the randomized scenes: half of each batch from each
+# (python -m jtus.data generate --preset diverse --out data/diverse.h5 first)
+PRESETS["game-mix"] = dataclasses.replace(PRESETS["game"], mix_dataset="data/diverse.h5",
+                                          mix_fraction=0.5)
 PRESETS["hdr-tiny"] = dataclasses.replace(PRESETS["tiny"], dataset="data/hdr-tiny.h5",
                                           data_preset="hdr-tiny",
                                           model_overrides=(("hdr", True),))

@@ -7,8 +7,11 @@ sweep trains exactly what ``python -m jtus.train`` would.
 
 from __future__ import annotations
 
+import os
 from typing import NamedTuple, Optional
 
+import jax
+import numpy as np
 import optax
 
 from jtus import losses, models, rollout
@@ -76,6 +79,31 @@ def start_carry(model, frames, targets) -> rollout.Carry:
     return rollout.start(rollout.first_state(model, frames), targets[0])
 
 
+def mix_count(config: Config, batch):
+    """How many of ``batch`` crops come from ``config.mix_dataset`` (at least one from
+    each dataset when mixing)."""
+    if not config.mix_dataset:
+        return 0
+    return int(min(max(round(batch * config.mix_fraction), 1), batch - 1))
+
+
+def train_crops(config: Config, ds, mix, batch, rng, accept=None):
+    """``(Frame [T,B,...], targets, [(dataset path, video, t0, y, x)])``: ``batch``
+    training crops, the last ``mix_count`` of them from ``mix`` (an open ``Dataset``
+    of ``config.mix_dataset``, or None)."""
+    n_mix = mix_count(config, batch) if mix is not None else 0
+    frames, targets, index = ds.crops("train", config.factor, batch - n_mix, config.seq_len,
+                                      config.crop, rng, return_index=True, accept=accept)
+    index = [(config.dataset, *i) for i in index]
+    if n_mix:
+        f2, t2, i2 = mix.crops("train", config.factor, n_mix, config.seq_len, config.crop, rng,
+                               return_index=True, accept=accept)
+        frames, targets = jax.tree_util.tree_map(lambda a, b: np.concatenate([a, b], 1),
+                                                 (frames, targets), (f2, t2))
+        index += [(config.mix_dataset, *i) for i in i2]
+    return frames, targets, index
+
+
 def check_data(config: Config):
     """Refuse, before anything is written, a dataset this config cannot train on: the
     factor, the crop against the frame size, the window against the videos' lengths,
@@ -100,3 +128,30 @@ def check_data(config: Config):
             if need > shortest:
                 raise ValueError(f"seq_len: {need} frames exceed the shortest {split} video "
                                  f"of {config.dataset} ({shortest} frames)")
+        if config.mix_dataset:
+            _check_mix(config, ds)
+
+
+def _check_mix(config: Config, ds):
+    """The mixed-in dataset: there, the same factor and colour kind as ``dataset``,
+    frames that hold the crop, training videos that hold the sequence."""
+    path = config.mix_dataset
+    if not os.path.isfile(path):
+        raise ValueError(f"mix_dataset: {path} does not exist; generate it first (python -m "
+                         f"jtus.data generate --preset diverse --out {path})")
+    with Dataset(path) as mix:
+        if config.factor not in mix.factors:
+            raise ValueError(f"mix_dataset: {path} holds factors {mix.factors}, got "
+                             f"{config.factor}")
+        if mix.hdr != ds.hdr:
+            raise ValueError(f"mix_dataset: {path} and {config.dataset} differ in HDR colour")
+        if config.crop > min(mix.size):
+            raise ValueError(f"crop: {config.crop} exceeds the frame size "
+                             f"{mix.size[0]}x{mix.size[1]} of {path}")
+        names = mix.videos("train")
+        if not names:
+            raise ValueError(f"mix_dataset: no videos in split 'train' of {path}")
+        shortest = min(mix.file[f"train/{n}/target"].shape[0] for n in names)
+        if config.seq_len > shortest:
+            raise ValueError(f"seq_len: {config.seq_len} frames exceed the shortest train "
+                             f"video of {path} ({shortest} frames)")

@@ -234,7 +234,7 @@ def _write_config(workdir, config):
             fh.write(run_config.to_json(config))
 
 
-def _train_epoch(run, ts, ds, epoch, progress):
+def _train_epoch(run, ts, ds, epoch, progress, mix=None):
     """One epoch of optimizer steps: ``(train state, per-step stats on the device)``.
     One random stream per epoch (and per process), so a resumed run draws the same
     crops."""
@@ -245,8 +245,8 @@ def _train_epoch(run, ts, ds, epoch, progress):
     bar = tqdm(range(config.steps_per_epoch), desc=f"epoch {epoch}/{config.epochs}",
                disable=not progress, leave=False)
     for i in bar:
-        frames, targets = ds.crops("train", config.factor, config.batch // procs,
-                                   config.seq_len, config.crop, rng, accept=run.accept)
+        frames, targets, _ = recipe.train_crops(config, ds, mix, config.batch // procs, rng,
+                                                run.accept)
         frames, targets = jax.tree_util.tree_map(jnp.asarray, (frames, targets))
         carry = recipe.start_carry(run.model, frames, targets)
         if run.mesh is not None:
@@ -320,14 +320,15 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
     end = config.epochs
     if stop_when is not None and history and stop_when(history):
         end = start_epoch  # stopped in an earlier call: nothing more to train
-    with Dataset(config.dataset) as ds:
+    with Dataset(config.dataset) as ds, contextlib.ExitStack() as stack:
+        mix = stack.enter_context(Dataset(config.mix_dataset)) if config.mix_dataset else None
         val_rng = np.random.default_rng([config.seed, 10**6])
         val_crops = [jax.tree_util.tree_map(jnp.asarray, ds.crops(
             "val", config.factor, config.batch, run.plan.window, config.crop, val_rng))
             for _ in range(config.val_batches)]
         for done, epoch in enumerate(range(start_epoch + 1, end + 1), 1):
             t0 = time.perf_counter()
-            ts, stats = _train_epoch(run, ts, ds, epoch, progress)
+            ts, stats = _train_epoch(run, ts, ds, epoch, progress, mix)
             rec = {"epoch": epoch, "step": int(sharding.to_host(ts.step)),
                    **_epoch_stats(stats, workdir, epoch)}
             params = sharding.to_host(ts.params) if jax.process_count() > 1 else ts.params

@@ -262,3 +262,42 @@ def test_real_train_step_hands_on_the_carry_after_k1_frames():
     assert bool(nxt.has_prev)
     _, state4 = rollout.outputs(model.step, params, model.init_state(seqdata.first(frames)), frames)
     assert float(jnp.abs(state4.history - state2.history).max()) > 1e-3  # control
+
+
+def test_mixed_datasets_share_each_batch(tiny_data, tmp_path):
+    """``mix_dataset``: the last ``round(batch * mix_fraction)`` crops of each batch (at
+    least one from each dataset) come from the second dataset's training videos;
+    validation stays on ``dataset``; a missing or unfit second dataset and a fraction
+    outside (0, 1) are refused before anything is written."""
+    import shutil
+
+    import h5py
+
+    from jtus import recipe
+    from jtus.data.dataset import Dataset
+
+    mix = tmp_path / "mix.h5"
+    shutil.copy(tiny_data, mix)
+    with h5py.File(mix, "a") as fh:
+        for name in list(fh["train"]):
+            fh.move(f"train/{name}", f"train/mixed_{name}")
+    config = _config(tiny_data, epochs=1, batch=4, mix_dataset=str(mix), mix_fraction=0.5)
+    assert [recipe.mix_count(dataclasses.replace(config, mix_fraction=f), b)
+            for f, b in ((0.5, 4), (0.25, 4), (0.9, 2), (0.1, 2))] == [2, 1, 1, 1]
+    with Dataset(tiny_data) as ds, Dataset(str(mix)) as mx:
+        frames, targets, index = recipe.train_crops(config, ds, mx, 4,
+                                                    np.random.default_rng(0))
+    assert frames.color.shape[1] == targets.shape[1] == 4
+    assert [i[0] for i in index] == [tiny_data] * 2 + [str(mix)] * 2
+    assert all(i[1].startswith("mixed_") for i in index[2:])
+    assert not any(i[1].startswith("mixed_") for i in index[:2])
+    _, hist = train.train_and_evaluate(config, tmp_path / "run", progress=False)
+    assert np.isfinite(hist[0]["train_loss"]) and np.isfinite(hist[0]["val_psnr"])
+    with pytest.raises(ValueError, match="mix_dataset: .*nope.h5 does not exist"):
+        train.train_and_evaluate(dataclasses.replace(config, mix_dataset=str(
+            tmp_path / "nope.h5")), tmp_path / "other", progress=False)
+    with pytest.raises(ValueError, match="crop: 64 exceeds"):
+        recipe.check_data(dataclasses.replace(config, crop=64))
+    assert not (tmp_path / "other").exists()
+    with pytest.raises(ValueError, match="mix_fraction"):
+        dataclasses.replace(config, mix_fraction=1.0)
