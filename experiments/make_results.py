@@ -19,8 +19,10 @@ import sys
 from common import RESULTS, ROOT, runs_so_far
 
 SECTIONS = [
-    ("comparison-table", "Every system on the three test families (randomized scenes, "
-     "hand-made scenes, an independent renderer)", None),
+    ("comparison-table", "Every system on the four test families (randomized scenes, "
+     "hand-made scenes, an independent renderer, held-out game levels)", None),
+    ("static-hold", "Static holds on the held-out families (`python "
+     "experiments/static_hold.py`)", "hold_x4.png"),
     ("evaluation", "Evaluation on the `default` data's test split (earlier weights)",
      "per_frame_x4.png"),
     ("pareto", "What accuracy costs in time (and thesis Tables 13 and 14 at inference)",
@@ -40,6 +42,7 @@ SECTIONS = [
 
 RUNS = {
     "full": [["experiments/comparison_table.py"],
+             ["experiments/static_hold.py"],
              ["experiments/sweep_theta.py"],
              ["experiments/pareto.py"],
              ["experiments/sweep_seqlen.py"],

@@ -74,6 +74,12 @@ def _writable_parent(path, field):
         raise ValueError(f"{field}: {parent} is a file, so {path} cannot be created")
     if not os.access(parent, os.W_OK):
         raise ValueError(f"{field}: {parent} is not writable")
+    try:  # access() says yes to root on /proc and read-only mounts: try a file there
+        fd, probe = tempfile.mkstemp(prefix=".jtus-probe-", dir=parent)
+    except OSError as e:
+        raise ValueError(f"{field}: no file can be created in {parent} ({e.strerror})") from e
+    os.close(fd)
+    os.remove(probe)
 
 
 def check_out_file(path, force=True, field="--out", kind="file"):

@@ -266,3 +266,16 @@ def test_generate_and_import_budgets_are_checked_before_any_work(tmp_path, capsy
     _refused(capsys, data_cli.main, imp, "writes about", "GiB free")
     assert sorted(os.listdir(tmp_path)) == ["hr", "lr"]
     assert data_cli.main(imp + ["--force"]) == 0 and out.exists()
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="needs Linux's /proc")
+def test_an_out_path_where_no_file_can_be_created_is_refused_up_front(tiny_data, capsys):
+    """/proc passes ``os.access(W_OK)`` for root yet takes no new file: the output
+    check creates (and removes) a probe file, so the command stops before any work."""
+    from jtus import export
+    from jtus.data import __main__ as data_cli
+
+    _refused(capsys, export.main, ["--factor", "4", "--format", "stablehlo", "--size", "32",
+                                   "32", "--out", "/proc/jtus-x"], "--out", "/proc")
+    _refused(capsys, data_cli.main, ["export", "--dataset", tiny_data, "--video",
+                                     "objects_00", "--out", "/proc/jtus-x"], "--out", "/proc")
