@@ -42,7 +42,7 @@ from jtus import cli, loading, losses, metrics, models, rollout
 from jtus.config import PRESETS
 from jtus.data.dataset import Dataset
 from jtus.data.exr import linear_to_srgb
-from jtus.files import check_out_folder
+from jtus.files import atomic_path, check_out_folder
 from jtus.sim.generate import ensure_dataset
 
 
@@ -142,7 +142,8 @@ def plot_per_frame(per_frame, path, factor):
     for a in ax:
         a.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
 
 
 def crop_grid(entries, dataset_path, factor, path, split="test", crop=64, rows=3):
@@ -194,7 +195,8 @@ def _labelled_grid(img, labels, path, tile_px=192, header=18):
     draw = ImageDraw.Draw(pic)
     for i, text in enumerate(labels):
         draw.text((i * width * k + 4, 3), text, fill="black")
-    pic.save(path)
+    with atomic_path(path) as tmp:
+        pic.save(tmp, format="PNG")
 
 
 def _parser():
@@ -250,13 +252,13 @@ def run(specs, dataset, factors=None, out=None, split="test", max_videos=None, v
                 if name not in written:
                     os.remove(os.path.join(out, name))
         cmd = command or f"jtus.evaluate.run({list(specs)!r}, {dataset!r}, {factors!r})"
-        with open(os.path.join(out, "results.md"), "w") as fh:
+        with atomic_path(os.path.join(out, "results.md")) as tmp, open(tmp, "w") as fh:
             fh.write(f"{markdown(summary)}\n\nCommand: `{cmd}`  \nSplit `{split}` of "
                      f"`{dataset}`, {len(names)} videos; {platform.machine()}, JAX "
                      f"{jax.__version__}, {jax.devices()[0].platform}.\n")
             for f, leg in legends.items():
                 fh.write(f"\n`crops_x{f}.png` columns: {', '.join(leg)}\n")
-        with open(os.path.join(out, "results.json"), "w") as fh:
+        with atomic_path(os.path.join(out, "results.json")) as tmp, open(tmp, "w") as fh:
             json.dump({str(k): v for k, v in summary.items()}, fh, indent=1)
     return summary
 

@@ -116,18 +116,20 @@ def available_memory():
     return None
 
 
-def check_budget(memory, disk, out, force=False, what="this command"):
+def check_budget(memory, disk, out, force=False, what="this command",
+                 smaller="smaller sizes or fewer frames"):
     """Refuse, before any work, a command whose ``memory`` (bytes held at once) or
     ``disk`` (bytes written under ``out``'s folder) exceeds what the machine has, unless
-    ``force``. ``ValueError`` saying how much is needed and how much there is."""
+    ``force``; ``smaller`` says what to reduce. ``ValueError`` saying how much is
+    needed and how much there is."""
     if force:
         return
     gib = 2.0 ** 30
     free_mem = available_memory()
     if free_mem is not None and memory > free_mem:
         raise ValueError(f"{what} needs about {memory / gib:.1f} GiB of memory, and "
-                         f"{free_mem / gib:.1f} GiB are free; use smaller sizes or fewer "
-                         f"frames, or pass --force to try anyway")
+                         f"{free_mem / gib:.1f} GiB are free; use {smaller}, or pass --force "
+                         "to try anyway")
     folder = _existing_parent(out)
     free_disk = shutil.disk_usage(folder).free
     if disk > free_disk:

@@ -45,7 +45,7 @@ from jtus import checkpoint, cli, evaluate, loading, models, recipe, rollout, sh
 from jtus import config as run_config
 from jtus.config import PRESETS, REMAT_CHOICES, Config
 from jtus.data.dataset import Dataset
-from jtus.files import atomic_path
+from jtus.files import atomic_path, check_budget
 from jtus.sim import generate
 
 # ---------------------------------------------------------------- train step
@@ -123,7 +123,8 @@ def plot_history(history, path):
         a.set_xlabel("epoch")
         a.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
 
 
 def collapsed(history, tiny=1e-7):
@@ -189,9 +190,12 @@ class _Run(NamedTuple):
     replacing: bool     # --overwrite of a run: its files stay until the first checkpoint
 
 
-def _start(config, workdir, resume, overwrite, progress):
+def _start(config, workdir, resume, overwrite, progress, force=False):
     """Check everything, then set the run up: ``(_Run, train state, first epoch,
-    history)``; the config is written, and a replaced run cleared, only once valid."""
+    history)``; the config is written, and a replaced run cleared, only once valid.
+    On one device the optimizer step is compiled here and its memory (XLA's buffer
+    assignment) checked against the machine's before any file is written (``force``:
+    go on past it)."""
     procs, main = jax.process_count(), sharding.is_main()
     _prepare_workdir(config, workdir, resume, overwrite)
     if main:
@@ -205,6 +209,15 @@ def _start(config, workdir, resume, overwrite, progress):
     model, loss_fn, opt = recipe.model_for(config), recipe.loss_for(config), \
         recipe.optimizer_for(config)
     ts = create_train_state(loading.init_params(config), opt)
+    plan = recipe.plan(config)
+    step_fn = make_train_step(model, loss_fn, opt, loss_frames=plan.loss_frames,
+                              keep_at=plan.keep_at, remat=config.remat, hoist=config.hoist)
+    mesh = sharding.data_mesh(config.batch)
+    if mesh is None:  # one device: the step compiled once, its memory checked up front
+        step_fn, memory = compile_step(config, model, step_fn, ts, plan)
+        check_budget(memory, 4 * _nbytes(ts.params) + 2 ** 20, workdir, force,
+                     what="this training step",
+                     smaller="a smaller --batch, --crop or --k2/--seq-len, or --remat")
     replacing = overwrite and not resume and os.path.exists(
         os.path.join(workdir, checkpoint.CHECKPOINT))
     if main:
@@ -215,17 +228,47 @@ def _start(config, workdir, resume, overwrite, progress):
         print(f"resumed {workdir} after epoch {start_epoch}", file=sys.stderr)
     if main and not replacing:  # a replaced run keeps its files until the new checkpoint
         _write_config(workdir, config)
-    mesh = sharding.data_mesh(config.batch)
     if mesh is not None:  # batch split over the devices, parameters replicated
         ts = sharding.replicate(ts, mesh)
-    plan = recipe.plan(config)
-    step_fn = make_train_step(model, loss_fn, opt, loss_frames=plan.loss_frames,
-                              keep_at=plan.keep_at, remat=config.remat, hoist=config.hoist)
     eval_loss = jax.jit(lambda p, c, f, t: rollout.window_loss(
         model.step, loss_fn, p, c, f, t, loss_frames=plan.loss_frames)[0])
     run = _Run(config, model, plan, step_fn, eval_loss, mesh, recipe.accept_for(config),
                replacing)
     return run, ts, start_epoch, history
+
+
+def _nbytes(tree):
+    return sum(x.size * x.dtype.itemsize for x in jax.tree_util.tree_leaves(tree))
+
+
+def compile_step(config, model, step_fn, ts, plan):
+    """``(step, memory)``: the jitted optimizer step compiled ahead of time for the run's
+    window shapes, and the bytes XLA's buffer assignment holds at once for one call
+    (arguments, outputs not aliased to them, temporaries). The shapes come from one
+    batch of training crops read with a throwaway random stream. Windows of different
+    lengths (none of the built-in plans has them) keep the jitted step for the others.
+    The shapes come from one training crop (read with a throwaway random stream) with
+    the batch axis set to the config's: nothing of the batch's size is allocated.
+    """
+    with Dataset(config.dataset) as ds:
+        one = ds.crops("train", config.factor, 1, config.seq_len, config.crop,
+                       np.random.default_rng(0))
+    w = plan.windows[0]
+    frames, targets = jax.tree_util.tree_map(
+        lambda x: jax.ShapeDtypeStruct((w.stop - w.start, config.batch) + x.shape[2:],
+                                       x.dtype), one)
+    carry = jax.eval_shape(lambda f, t: recipe.start_carry(model, f, t), frames, targets)
+    compiled = step_fn.lower(ts, carry, frames, targets).compile()
+    m = compiled.memory_analysis()
+    memory = (m.argument_size_in_bytes + m.output_size_in_bytes - m.alias_size_in_bytes
+              + m.temp_size_in_bytes)
+    length = w.stop - w.start
+
+    def step(ts, carry, frames, targets):
+        fn = compiled if len(targets) == length else step_fn
+        return fn(ts, carry, frames, targets)
+
+    return step, memory
 
 
 def _write_config(workdir, config):
@@ -301,11 +344,12 @@ def _record_epoch(run, workdir, ts, epoch, history):
 
 
 def train_and_evaluate(config: Config, workdir, resume=False, progress=True, stop_after=None,
-                       overwrite=False, stop_when=None):
+                       overwrite=False, stop_when=None, force=False):
     """Train ``config`` into ``workdir``; returns ``(params, history)``.
 
     A workdir that holds a run is continued with ``resume`` or replaced with
-    ``overwrite``, never silently mixed; everything is checked before the first write.
+    ``overwrite``, never silently mixed; everything is checked before the first write,
+    the step's memory included (``force``: go on past the machine's free memory).
     A non-finite loss or gradient stops the run and leaves the last good checkpoint.
     ``stop_after``: stop (as if killed) after that many epochs of this call, for tests.
     ``stop_when(history) -> reason or None``: checked on a resumed history and after each
@@ -316,7 +360,8 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
     own ``batch / processes`` crops of each step (its own random stream) and process 0
     alone writes files; the workdir and dataset must be on a file system they share.
     """
-    run, ts, start_epoch, history = _start(config, workdir, resume, overwrite, progress)
+    run, ts, start_epoch, history = _start(config, workdir, resume, overwrite, progress,
+                                           force)
     end = config.epochs
     if stop_when is not None and history and stop_when(history):
         end = start_epoch  # stopped in an earlier call: nothing more to train
@@ -359,6 +404,9 @@ def _parser():
     p.add_argument("--resume", action="store_true")
     p.add_argument("--overwrite", action="store_true",
                    help="start again in a --workdir that holds a run")
+    p.add_argument("--force", action="store_true",
+                   help="go on past the memory budget (the compiled step's buffers against "
+                        "the machine's free memory)")
     p.add_argument("--no-eval", action="store_true",
                    help="skip the final comparison with JAU, TUS and the shipped weights")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -442,7 +490,7 @@ def main(argv=None):
         config = config_from_args(args)
         workdir = args.workdir or os.path.join("runs", f"{args.preset}-x{config.factor}")
         train_and_evaluate(config, workdir, resume=args.resume, progress=not args.quiet,
-                           overwrite=args.overwrite)
+                           overwrite=args.overwrite, force=args.force)
     except (ValueError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

@@ -268,6 +268,64 @@ def test_generate_and_import_budgets_are_checked_before_any_work(tmp_path, capsy
     assert data_cli.main(imp + ["--force"]) == 0 and out.exists()
 
 
+def test_nss_budget_is_checked_before_a_pixel_is_read(tmp_path, capsys, monkeypatch):
+    """`import-nss` works out its memory and disk from each sequence's JSON and frame
+    count (every sequence held as float32 until the write; colours stored as float16)
+    and refuses past what the machine has, before reading any image; ``--force`` goes on."""
+    from jtus import files
+    from jtus.data import nss
+    from tests import nss_fixture
+
+    root = str(tmp_path / "nss")
+    nss_fixture.write_dataset(root)
+    names = nss.sequences(root)
+    lr, hr, n = (nss_fixture.H // 2) * (nss_fixture.W // 2), nss_fixture.H * nss_fixture.W, \
+        nss_fixture.T
+    mem, disk = nss.budget(root, 2)
+    held = n * (lr * 24 + hr * 12)
+    assert (mem, disk) == (held * (len(names) + 1), len(names) * n * (lr * 18 + hr * 6))
+    out = tmp_path / "out.h5"
+    argv = ["import-nss", "--root", root, "--factor", "2", "--out", str(out), "--quiet"]
+    read = []
+    monkeypatch.setattr(nss, "_frame_images", lambda *a: read.append(a))
+    monkeypatch.setattr(files, "available_memory", lambda: mem - 1)
+    _refused(capsys, data_cli.main, argv, "import-nss needs about", "--force")
+    monkeypatch.setattr(files, "available_memory", lambda: 2 ** 40)
+    monkeypatch.setattr(files.shutil, "disk_usage", lambda p: type("U", (), {"free": disk - 1}))
+    _refused(capsys, data_cli.main, argv, "import-nss writes about", "GiB free")
+    assert not read and not out.exists()
+    monkeypatch.undo()
+    assert data_cli.main(argv) == 0 and out.exists()
+
+
+def test_train_step_memory_is_checked_before_the_workdir_is_touched(tiny_data, tmp_path,
+                                                                     capsys, monkeypatch):
+    """`train` compiles its optimizer step before any file is written and refuses a step
+    whose buffers (XLA's buffer assignment: arguments, outputs, temporaries) exceed the
+    machine's free memory; ``--force`` goes on."""
+    from jtus import files, loading, train
+
+    run = tmp_path / "run"
+    argv = ["--preset", "tiny", "--dataset", tiny_data, "--workdir", str(run), "--quiet",
+            "--no-eval", "--epochs", "1"]
+    asked = []
+    check = train.check_budget
+    monkeypatch.setattr(train, "check_budget", lambda m, *a, **k: (asked.append(m),
+                                                                   check(m, *a, **k)))
+    monkeypatch.setattr(files, "available_memory", lambda: 2 ** 20)
+    _refused(capsys, train.main, argv, "this training step needs about", "--batch", "--force")
+    assert not run.exists()
+    # at least what the step is handed: the train state (parameters and Adam's two
+    # moments) and the window's frames and targets (float32: 4 frames of 2 crops, 16x16
+    # targets of 3 channels and 4x4 inputs of colour, depth and motion); a tiny model's
+    # step stays well under 1 GiB
+    cfg = train.config_from_argv(argv)
+    params = sum(x.size * 4 for x in train.jax.tree_util.tree_leaves(loading.init_params(cfg)))
+    assert 3 * params + 4 * 2 * (16 * 16 * 3 + 4 * 4 * 6) * 4 < asked[0] < 2 ** 30, asked
+    assert train.main(argv + ["--force"]) == 0
+    assert (run / "checkpoint.msgpack").exists()
+
+
 @pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="needs Linux's /proc")
 def test_an_out_path_where_no_file_can_be_created_is_refused_up_front(tiny_data, capsys):
     """/proc passes ``os.access(W_OK)`` for root yet takes no new file: the output

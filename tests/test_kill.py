@@ -8,6 +8,7 @@ The kill moments are drawn from a seeded generator; CI takes one per tool, and
 
 import dataclasses
 import hashlib
+import json
 import os
 import signal
 import subprocess
@@ -234,3 +235,35 @@ def test_train_overwrite_killed_leaves_the_old_run_whole(tmp_path, k, tiny_data)
         params = loading.init_params(config)
         checkpoint.restore_train_state(
             str(work), train.create_train_state(params, recipe.optimizer_for(config)))
+
+
+@pytest.mark.parametrize("k", range(KILLS))
+def test_evaluate_killed_leaves_whole_results(tmp_path, k, tiny_data):
+    """``evaluate --out`` over an earlier run's results, SIGKILLed at a seeded moment:
+    each result file (the table, the JSON summary, the plots) is the earlier version or
+    a whole new one (each is written beside its path and renamed)."""
+    from PIL import Image
+
+    out = tmp_path / "eval"
+    base = ["jtus.evaluate", "--dataset", tiny_data, "--factor", "4", "--quiet", "--json",
+            "--out", str(out), "--models"]
+    t0 = time.time()
+    assert subprocess.run([sys.executable, "-m"] + base + ["jau"], cwd=ROOT,
+                          capture_output=True).returncode == 0
+    duration = time.time() - t0
+    old = {f: _digest(out / f) for f in os.listdir(out)}
+    assert set(old) == {"results.md", "results.json", "per_frame_x4.png", "crops_x4.png"}
+    delay = np.random.default_rng([9, k]).uniform(0.0, duration)
+    _signal(_start(base + ["tus"]), signal.SIGKILL, lambda: True, delay)
+    for f in old:
+        path = out / f
+        if _digest(path) == old[f]:
+            continue
+        if f == "results.json":
+            assert list(json.load(open(path))["4"]) == ["tus"]
+        elif f == "results.md":
+            text = path.read_text()
+            assert "| 4x | tus |" in text and text.endswith("\n")
+        else:
+            with Image.open(path) as im:
+                im.verify()

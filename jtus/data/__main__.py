@@ -64,7 +64,8 @@ def _parser():
     s.add_argument("--linear-truth", action="store_true",
                    help="the ground truth EXRs are linear (Arm's --linear_truth); by "
                         "default they are Karis tone-mapped and brought back to linear")
-    s.add_argument("--force", action="store_true", help="replace an existing --out")
+    s.add_argument("--force", action="store_true",
+                   help="replace an existing --out; go on past the memory or disk budget")
     s.add_argument("--quiet", action="store_true")
     e = sub.add_parser("export", help="write a dataset video as EXR or PNG frames")
     e.add_argument("--dataset", required=True)
@@ -152,6 +153,8 @@ def main(argv=None):
                 raise ValueError(f"--factor: expected a positive integer, got {args.factor}")
             check_out_file(args.out, args.force, kind="an .h5 file")
             names = args.sequences.split(",") if args.sequences else None
+            check_budget(*nss.budget(args.root, args.factor, names), args.out, args.force,
+                         what="import-nss")
             nss.import_nss(args.root, args.factor, args.out, args.split, names,
                            progress=not args.quiet,
                            truth="linear" if args.linear_truth else "karis")

@@ -275,6 +275,24 @@ def _assemble(where, cols, jit, exposure, reset, planes, factor):
     return out
 
 
+def budget(root, factor, names=None):
+    """``(memory, disk)`` bytes of ``import_nss``, from each sequence's JSON and its
+    frame count before any pixel is read: every sequence is held as float32 (input
+    colour, depth and motion; target colour) until the file is written, the largest
+    twice while it is stacked; the dataset stores colours as float16, depth and motion
+    as float32."""
+    names = sequences(root) if names is None else list(names)
+    memory = disk = peak = 0
+    for name in names:
+        _, _, _, (H, W), _, _ = _read_meta(root, name, factor)
+        n = len(_files(root, name, factor)["color"])
+        lr_px, hr_px = (H // factor) * (W // factor), H * W
+        held = n * (lr_px * 6 * 4 + hr_px * 3 * 4)
+        memory, peak = memory + held, max(peak, held)
+        disk += n * (lr_px * (3 * 2 + 3 * 4) + hr_px * 3 * 2)
+    return memory + peak, disk
+
+
 def import_nss(root, factor, out, split="test", names=None, progress=True, truth="karis"):
     """Every sequence (or ``names``) of the NSS dataset at ``root`` into one jtus HDF5
     dataset ``out`` (split ``split``, videos named after the sequences), atomically:
