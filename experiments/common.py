@@ -211,17 +211,24 @@ def thesis_path(factor, thesis_dir=THESIS_DIR):
     return path if path and os.path.exists(path) else None
 
 
-def game_finetune(factor, root=ROOT):
-    """``(path, rows, config)`` of the DLCTUS fine-tune on the ``game`` data at
-    ``factor``: its exported weights (``experiments/weights/dlctus-game-x<f>``) or its
-    committed checkpoint (``experiments/checkpoints/game-x<f>/``); None if neither."""
+# the shipped DLCTUS fine-tuned from its weights: label -> the run's name (its preset),
+# exported as experiments/weights/dlctus-<name>-x<f>, checkpoints in
+# experiments/checkpoints/<folder>-x<f>/
+FINETUNES = {"dlctus-game": ("game", "game"), "dlctus-game-mix": ("game-mix", "mix")}
+
+
+def finetune(factor, label="dlctus-game", root=ROOT):
+    """``(path, rows, config)`` of a fine-tune of the shipped DLCTUS (``FINETUNES``) at
+    ``factor``: its exported weights (``experiments/weights/dlctus-<name>-x<f>``) or its
+    committed checkpoint (``experiments/checkpoints/<folder>-x<f>/``); None if neither."""
+    name, folder = FINETUNES[label]
     for path, log, cfg in (
-            (f"experiments/weights/dlctus-game-x{factor}.msgpack",
-             f"experiments/weights/dlctus-game-x{factor}-training.csv",
-             f"experiments/weights/dlctus-game-x{factor}.json"),
-            (f"experiments/checkpoints/game-x{factor}/checkpoint.msgpack",
-             f"experiments/checkpoints/game-x{factor}/metrics.csv",
-             f"experiments/checkpoints/game-x{factor}/config.json")):
+            (f"experiments/weights/dlctus-{name}-x{factor}.msgpack",
+             f"experiments/weights/dlctus-{name}-x{factor}-training.csv",
+             f"experiments/weights/dlctus-{name}-x{factor}.json"),
+            (f"experiments/checkpoints/{folder}-x{factor}/checkpoint.msgpack",
+             f"experiments/checkpoints/{folder}-x{factor}/metrics.csv",
+             f"experiments/checkpoints/{folder}-x{factor}/config.json")):
         if all(os.path.exists(os.path.join(root, q)) for q in (path, log, cfg)):
             with open(os.path.join(root, log)) as fh:
                 rows = list(csv.DictReader(fh))

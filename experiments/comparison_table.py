@@ -17,7 +17,8 @@ Families (each video from a fresh state; none trained or tuned on):
 - ``game``: the held-out test levels of ``data/game.h5`` (``--preset game``).
 
 Systems: JAU and TUS (nothing to train), the thesis's released model (``--thesis``), the
-shipped DLCTUS (``jtus/weights/``), its fine-tune on the game data (``dlctus-game``) and each
+shipped DLCTUS (``jtus/weights/``), its fine-tunes (``dlctus-game`` on the game data,
+``dlctus-game-mix`` on game and ``diverse`` data half and half in each batch) and each
 comparison system at its newest training on the ``diverse`` data: the exported weights
 of a finished run (``experiments/weights/<model>-x<f>.msgpack``) or, for a run still in
 progress, its committed checkpoint (``experiments/checkpoints/<model>-diverse-x<f>/``),
@@ -37,7 +38,8 @@ import csv
 import json
 import os
 
-from common import (ROOT, SYSTEMS, THESIS_DIR, command_line, evaluate_clips, find, game_finetune,
+from common import (ROOT, SYSTEMS, THESIS_DIR, command_line, evaluate_clips, find, FINETUNES,
+                    finetune,
                     summarize, thesis_path, weights_path, write)
 
 from jtus import evaluate, loading
@@ -53,11 +55,22 @@ FAMILIES = {
 
 
 def budget(cfg, rows):
-    """``{steps, crop, frames, seconds}`` of a run from its config and per-epoch log."""
+    """``{steps, crop, frames, seconds}`` of a run from its config and per-epoch log,
+    plus the runs its weights started from (``init_from`` naming exported weights with
+    their own ``.json`` and ``-training.csv``): a fine-tune's budget is the whole chain."""
     s = summarize(rows, cfg["epochs"])
-    return {"steps": s["steps"], "crop": cfg["crop"], "frames": cfg["seq_len"],
-            "seconds": s["seconds"]}
-
+    out = {"steps": s["steps"], "crop": cfg["crop"], "frames": cfg["seq_len"],
+           "seconds": s["seconds"]}
+    init = cfg.get("init_from") or ""
+    base = os.path.join(ROOT, init[:-len(".msgpack")]) if init.endswith(".msgpack") else ""
+    if base and os.path.exists(base + ".json") and os.path.exists(base + "-training.csv"):
+        with open(base + ".json") as fh:
+            icfg = json.load(fh)
+        with open(base + "-training.csv") as fh:
+            before = budget(icfg.get("config", icfg), list(csv.DictReader(fh)))
+        out["steps"] += before["steps"]
+        out["seconds"] += before["seconds"]
+    return out
 
 
 def systems(factor, thesis_dir=None):
@@ -75,14 +88,16 @@ def systems(factor, thesis_dir=None):
         rows = list(csv.DictReader(fh))
     out.append(("dlctus", f"dlctus={loading.shipped_path(factor)}", "shipped",
                 budget(cfg, rows)))
-    game = game_finetune(factor)
-    if game is not None:
-        path, rows, cfg = game
-        status = ("shipped weights fine-tuned on the game data" if path.startswith(
-            "experiments/weights/") else
-            f"game fine-tune, epoch {len(rows)} of {cfg['epochs']} (unfinished)")
-        out.append(("dlctus-game", f"dlctus-game={os.path.join(ROOT, path)}", status,
-                    budget(cfg, rows)))
+    for label in FINETUNES:
+        got = finetune(factor, label)
+        if got is None:
+            continue
+        path, rows, cfg = got
+        status = (f"shipped weights fine-tuned ({cfg['data_preset']} preset"
+                  + (", half of each batch from the diverse data" if cfg.get("mix_dataset")
+                     else "") + ")" if path.startswith("experiments/weights/") else
+                  f"fine-tune, epoch {len(rows)} of {cfg['epochs']} (unfinished)")
+        out.append((label, f"{label}={os.path.join(ROOT, path)}", status, budget(cfg, rows)))
     for m in SYSTEMS:
         got = find(m, factor, ROOT)
         if got is None:
@@ -140,7 +155,7 @@ def targets(results):
                 a, b = psnr(f, fam, m), psnr(f, fam, "tus")
                 if a is not None and b is not None:
                     out.append((f"{m.upper()} - TUS > 0, {fam}, {f}x", a - b, a > b))
-            for m in ("dlctus", "dlctus-game"):
+            for m in ("dlctus", *FINETUNES):
                 a, b = psnr(f, fam, m), psnr(f, fam, "thesis")
                 if a is not None and b is not None:
                     out.append((f"{m} - thesis > 0, {fam}, {f}x", a - b, a > b))
@@ -153,7 +168,7 @@ def readme_table(results):
     fams = [fam for fam in FAMILIES if any(fam in results.get(f, {}) for f in ("4", "2"))]
     factors = [f for f in ("4", "2") if f in results]
     found = set(lab for f in factors for fam in fams for lab in results[f].get(fam, {}))
-    order = ("jau", "tus", "thesis", "dlctus", "dlctus-game") + SYSTEMS
+    order = ("jau", "tus", "thesis", "dlctus", *FINETUNES) + SYSTEMS
     labels = [lab for lab in order if lab in found] + sorted(found - set(order))
     short = {"random": "random scenes", "handmade": "hand-made", "external": "Mitsuba 3",
              "game": "game levels"}

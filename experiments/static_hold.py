@@ -7,7 +7,7 @@ every jitter sequence; this script takes the held-out families.)
     python experiments/static_hold.py --factors 4 \\
         --models tus mine=runs/game-x{f}/checkpoint.msgpack
 
-Models (default): TUS, the shipped DLCTUS, its fine-tune on the game data and the
+Models (default): TUS, the shipped DLCTUS, its fine-tunes (common.FINETUNES) and the
 thesis's released model (``--thesis``), where present; ``{f}`` in a model's path is
 replaced by the factor. Two families, both held out:
 
@@ -19,9 +19,11 @@ replaced by the factor. Two families, both held out:
 
 Per model, family and factor, PSNR per frame over the hold (the game levels averaged
 frame by frame). ``fall``: the best PSNR among the last 12 frames minus the last frame's
-(0 for a model that keeps converging; the target is at most 0.1 dB); ``gain``: the last
-frame minus the hold's first. Writes ``docs/results/<name>/`` (``result.md``,
-``result.json``, ``hold_x<f>.png``). Jitter: the thesis's Halton(2,3) cycle of 16.
+(0 for a model that keeps converging; the target is at most 0.1 dB); ``drift``: the
+fall of a least-squares line through those frames (the trend, where ``fall`` is set by
+the lowest phase of the jitter cycle); ``gain``: the last frame minus the hold's first.
+Writes ``docs/results/<name>/`` (``result.md``, ``result.json``, ``hold_x<f>.png``).
+Jitter: the thesis's Halton(2,3) cycle of 16.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ import jax
 import jax.numpy as jnp
 import matplotlib
 import numpy as np
-from common import THESIS_DIR, game_finetune, out_dir, thesis_path, write
+from common import FINETUNES, THESIS_DIR, finetune, out_dir, thesis_path, write
 from tqdm import tqdm
 
 from jtus import evaluate, loading
@@ -49,10 +51,11 @@ MITSUBA_MOVING = 16  # the hold clip's frames before it holds (render_mitsuba.cl
 
 
 def default_models(factor, thesis_dir=THESIS_DIR):
-    """TUS, the shipped DLCTUS, the game fine-tune and the thesis's model, where present."""
+    """TUS, the shipped DLCTUS, its fine-tunes and the thesis's model, where present."""
     out = ["tus", "shipped"]
-    if game_finetune(factor):
-        out.append(f"dlctus-game={game_finetune(factor)[0]}")
+    for label in FINETUNES:
+        if finetune(factor, label):
+            out.append(f"{label}={finetune(factor, label)[0]}")
     if thesis_path(factor, thesis_dir):
         out.append(f"thesis={thesis_path(factor, thesis_dir)}")
     return out
@@ -65,6 +68,14 @@ def fall_and_gain(curve, window=WINDOW):
     if curve.ndim != 1 or len(curve) < window:
         raise ValueError(f"curve: expected at least {window} frames, got shape {curve.shape}")
     return float(curve[-window:].max() - curve[-1]), float(curve[-1] - curve[0])
+
+
+def drift(curve, window=WINDOW):
+    """How far a straight line fitted (least squares) to the last ``window`` frames
+    falls from its first frame to its last, in dB (negative: it rises). Unlike ``fall``,
+    which one low frame sets, this reads the trend under the jitter cycle's ripple."""
+    c = np.asarray(curve, float)[-window:]
+    return float(-np.polyfit(np.arange(len(c)), c, 1)[0] * (len(c) - 1))
 
 
 def mitsuba_curves(entries, factor, root):
@@ -144,21 +155,25 @@ def main():
         for fam, (curves, worst) in families.items():
             for lab, c in curves.items():
                 fall, gain = fall_and_gain(c)
+                d = drift(c)
                 w = "" if worst is None else f"{worst[lab]:.2f}"
                 rows.append(f"| {f}x | {fam} | {lab} | {c[0]:.2f} | {c[-1]:.2f} | {gain:+.2f} "
-                            f"| {fall:.2f} | {w} |")
+                            f"| {fall:.2f} | {d:+.2f} | {w} |")
                 data.setdefault(str(f), {}).setdefault(fam, {})[lab] = {
-                    "psnr": [float(v) for v in c], "fall": fall, "gain": gain,
+                    "psnr": [float(v) for v in c], "fall": fall, "drift": d, "gain": gain,
                     "worst_level_fall": None if worst is None else worst[lab]}
         plot({fam: c for fam, (c, _) in families.items()}, f,
              os.path.join(out_dir(args.name), f"hold_x{f}.png"))
     table = ("| factor | family | model | first frame (dB) | last frame (dB) | gain (dB) | "
-             f"fall over the last {WINDOW} (dB) | worst level's fall (dB) |\n"
-             "| --- | --- | --- | --- | --- | --- | --- | --- |\n" + "\n".join(rows))
+             f"fall over the last {WINDOW} (dB) | drift over the last {WINDOW} (dB) | "
+             "worst level's fall (dB) |\n"
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |\n" + "\n".join(rows))
     note = (f"Holds of {HOLD} frames. mitsuba: the `hold` clip's frames "
             f"{MITSUBA_MOVING}-{MITSUBA_MOVING + HOLD - 1}; game: the mean curve over the "
             f"levels {', '.join(args.levels)} at {args.size}x{args.size}, 16-spp targets. "
-            "fall: best of the last frames minus the last (target <= 0.1 dB).")
+            "fall: best of the last frames minus the last (target <= 0.1 dB); drift: the "
+            "fall of a straight line fitted to the last frames, from its first to its last "
+            "(the trend under the ripple of the jitter cycle; negative: rising).")
     if not have_game:
         note += " Game holds skipped: no assets (bash data/fetch_game_assets.sh)."
     write(args.name, table, data, note=note)

@@ -160,6 +160,22 @@ def test_runs_are_saved_and_restored(tmp_path):
     assert (dst / "checkpoint.msgpack").read_text() == "ck"
 
 
+def test_a_fine_tunes_budget_adds_the_run_it_started_from(tmp_path, monkeypatch):
+    """experiments/comparison_table.py: a run whose ``init_from`` names exported weights
+    (with their config and log beside them) counts their steps and seconds too."""
+    ct = seqdata.load_script("comparison_table")
+    monkeypatch.setattr(ct, "ROOT", str(tmp_path))
+    (tmp_path / "w").mkdir()
+    base = {"epochs": 2, "crop": 128, "seq_len": 16}
+    (tmp_path / "w" / "base.json").write_text(json.dumps(base))
+    (tmp_path / "w" / "base-training.csv").write_text(
+        "epoch,step,val_psnr,seconds\n1,400,30,100\n2,800,31,110\n")
+    rows = [{"epoch": "1", "step": "400", "val_psnr": "32", "seconds": "50"}]
+    tune = dict(base, epochs=1, init_from="w/base.msgpack")
+    assert ct.budget(tune, rows) == {"steps": 1200, "crop": 128, "frames": 16, "seconds": 260}
+    assert ct.budget(dict(tune, init_from="w/missing.msgpack"), rows)["steps"] == 400
+
+
 def test_comparison_table_systems_and_targets():
     """experiments/comparison_table.py: every system is listed at both factors with a
     spec that loads (or none, when it has no training on the diverse data), and the
@@ -167,7 +183,7 @@ def test_comparison_table_systems_and_targets():
     ct = seqdata.load_script("comparison_table")
     for f in (4, 2):
         rows = ct.systems(f)
-        game = ["dlctus-game"] if ct.game_finetune(f) else []
+        game = [lab for lab in ct.FINETUNES if ct.finetune(f, lab)]
         assert [r[0] for r in rows] == ["jau", "tus", "dlctus", *game, *ct.SYSTEMS]
         for label, spec, status, budget in rows:
             if spec is None:
@@ -316,5 +332,13 @@ def test_static_hold_fall_is_measured_from_the_best_of_the_last_frames():
     assert sh.fall_and_gain(curve) == pytest.approx((0.75, 2.25))
     assert sh.fall_and_gain(np.linspace(20, 24, 24)) == pytest.approx((0.0, 4.0))
     assert sh.fall_and_gain([30.0] * 11 + [29.0] * 13)[0] == pytest.approx(0.0)
+    # drift: a straight line's fall over the last 12, whatever the ripple on it
+    # (a +-0.3 dB ripple moves the fitted line by 0.3 * 6 / 143 dB a frame; the fall,
+    # set by the lowest frame, reads 1.6 dB)
+    rippled = np.linspace(30, 29, 12) + 0.3 * (-1.0) ** np.arange(12)
+    assert sh.drift(rippled) == pytest.approx(1.0 + 11 * 0.3 * 6 / 143, abs=1e-9)
+    assert sh.fall_and_gain(rippled)[0] == pytest.approx(1.6)
+    assert sh.drift(np.r_[np.zeros(12), np.linspace(30, 29, 12)]) == pytest.approx(1.0)
+    assert sh.drift(np.linspace(20, 24, 24)) < 0
     with pytest.raises(ValueError, match="at least 12 frames"):
         sh.fall_and_gain([1.0] * 11)
