@@ -211,17 +211,18 @@ def thesis_path(factor, thesis_dir=THESIS_DIR):
     return path if path and os.path.exists(path) else None
 
 
-# the shipped DLCTUS fine-tuned from its weights: label -> the run's name (its preset),
-# exported as experiments/weights/dlctus-<name>-x<f>, checkpoints in
-# experiments/checkpoints/<folder>-x<f>/
-FINETUNES = {"dlctus-game": ("game", "game"), "dlctus-game-mix": ("game-mix", "mix")}
+# other trainings of DLCTUS beside the shipped weights: label -> (name, folder); exported
+# as experiments/weights/dlctus-<name>-x<f>, checkpoints in experiments/checkpoints/
+# <folder>-x<f>/. dlctus-diverse: the shipped weights' first stage (the diverse data
+# alone); dlctus-game: that stage fine-tuned on the game data alone
+DLCTUS_RUNS = {"dlctus-diverse": ("diverse", "diverse"), "dlctus-game": ("game", "game")}
 
 
-def finetune(factor, label="dlctus-game", root=ROOT):
-    """``(path, rows, config)`` of a fine-tune of the shipped DLCTUS (``FINETUNES``) at
+def dlctus_run(factor, label="dlctus-game", root=ROOT):
+    """``(path, rows, config)`` of another training of DLCTUS (``DLCTUS_RUNS``) at
     ``factor``: its exported weights (``experiments/weights/dlctus-<name>-x<f>``) or its
     committed checkpoint (``experiments/checkpoints/<folder>-x<f>/``); None if neither."""
-    name, folder = FINETUNES[label]
+    name, folder = DLCTUS_RUNS[label]
     for path, log, cfg in (
             (f"experiments/weights/dlctus-{name}-x{factor}.msgpack",
              f"experiments/weights/dlctus-{name}-x{factor}-training.csv",

@@ -17,8 +17,9 @@ Families (each video from a fresh state; none trained or tuned on):
 - ``game``: the held-out test levels of ``data/game.h5`` (``--preset game``).
 
 Systems: JAU and TUS (nothing to train), the thesis's released model (``--thesis``), the
-shipped DLCTUS (``jtus/weights/``), its fine-tunes (``dlctus-game`` on the game data,
-``dlctus-game-mix`` on game and ``diverse`` data half and half in each batch) and each
+shipped DLCTUS (``jtus/weights/``: trained on the ``diverse`` data, then fine-tuned on
+the game and ``diverse`` data half and half), its first stage alone (``dlctus-diverse``),
+that stage fine-tuned on the game data alone (``dlctus-game``) and each
 comparison system at its newest training on the ``diverse`` data: the exported weights
 of a finished run (``experiments/weights/<model>-x<f>.msgpack``) or, for a run still in
 progress, its committed checkpoint (``experiments/checkpoints/<model>-diverse-x<f>/``),
@@ -38,8 +39,8 @@ import csv
 import json
 import os
 
-from common import (ROOT, SYSTEMS, THESIS_DIR, command_line, evaluate_clips, find, FINETUNES,
-                    finetune,
+from common import (DLCTUS_RUNS, ROOT, SYSTEMS, THESIS_DIR, command_line, dlctus_run,
+                    evaluate_clips, find,
                     summarize, thesis_path, weights_path, write)
 
 from jtus import evaluate, loading
@@ -86,17 +87,18 @@ def systems(factor, thesis_dir=None):
         cfg = json.load(fh)
     with open(os.path.join(ROOT, "jtus", "weights", f"dlctus-x{factor}-training.csv")) as fh:
         rows = list(csv.DictReader(fh))
-    out.append(("dlctus", f"dlctus={loading.shipped_path(factor)}", "shipped",
+    out.append(("dlctus", f"dlctus={loading.shipped_path(factor)}",
+                "shipped (diverse, then game and diverse half and half)",
                 budget(cfg, rows)))
-    for label in FINETUNES:
-        got = finetune(factor, label)
+    for label in DLCTUS_RUNS:
+        got = dlctus_run(factor, label)
         if got is None:
             continue
         path, rows, cfg = got
-        status = (f"shipped weights fine-tuned ({cfg['data_preset']} preset"
-                  + (", half of each batch from the diverse data" if cfg.get("mix_dataset")
-                     else "") + ")" if path.startswith("experiments/weights/") else
-                  f"fine-tune, epoch {len(rows)} of {cfg['epochs']} (unfinished)")
+        status = (f"{cfg['data_preset']} preset" + (
+            f", from {cfg['init_from']}" if cfg.get("init_from") else "")
+            if path.startswith("experiments/weights/") else
+            f"epoch {len(rows)} of {cfg['epochs']} (unfinished)")
         out.append((label, f"{label}={os.path.join(ROOT, path)}", status, budget(cfg, rows)))
     for m in SYSTEMS:
         got = find(m, factor, ROOT)
@@ -155,7 +157,7 @@ def targets(results):
                 a, b = psnr(f, fam, m), psnr(f, fam, "tus")
                 if a is not None and b is not None:
                     out.append((f"{m.upper()} - TUS > 0, {fam}, {f}x", a - b, a > b))
-            for m in ("dlctus", *FINETUNES):
+            for m in ("dlctus", *DLCTUS_RUNS):
                 a, b = psnr(f, fam, m), psnr(f, fam, "thesis")
                 if a is not None and b is not None:
                     out.append((f"{m} - thesis > 0, {fam}, {f}x", a - b, a > b))
@@ -168,7 +170,7 @@ def readme_table(results):
     fams = [fam for fam in FAMILIES if any(fam in results.get(f, {}) for f in ("4", "2"))]
     factors = [f for f in ("4", "2") if f in results]
     found = set(lab for f in factors for fam in fams for lab in results[f].get(fam, {}))
-    order = ("jau", "tus", "thesis", "dlctus", *FINETUNES) + SYSTEMS
+    order = ("jau", "tus", "thesis", "dlctus", *DLCTUS_RUNS) + SYSTEMS
     labels = [lab for lab in order if lab in found] + sorted(found - set(order))
     short = {"random": "random scenes", "handmade": "hand-made", "external": "Mitsuba 3",
              "game": "game levels"}

@@ -7,7 +7,7 @@ every jitter sequence; this script takes the held-out families.)
     python experiments/static_hold.py --factors 4 \\
         --models tus mine=runs/game-x{f}/checkpoint.msgpack
 
-Models (default): TUS, the shipped DLCTUS, its fine-tunes (common.FINETUNES) and the
+Models (default): TUS, the shipped DLCTUS, its other runs (common.DLCTUS_RUNS) and the
 thesis's released model (``--thesis``), where present; ``{f}`` in a model's path is
 replaced by the factor. Two families, both held out:
 
@@ -35,7 +35,7 @@ import jax
 import jax.numpy as jnp
 import matplotlib
 import numpy as np
-from common import FINETUNES, THESIS_DIR, finetune, out_dir, thesis_path, write
+from common import DLCTUS_RUNS, THESIS_DIR, dlctus_run, out_dir, thesis_path, write
 from tqdm import tqdm
 
 from jtus import evaluate, loading
@@ -51,11 +51,11 @@ MITSUBA_MOVING = 16  # the hold clip's frames before it holds (render_mitsuba.cl
 
 
 def default_models(factor, thesis_dir=THESIS_DIR):
-    """TUS, the shipped DLCTUS, its fine-tunes and the thesis's model, where present."""
+    """TUS, the shipped DLCTUS, its other runs and the thesis's model, where present."""
     out = ["tus", "shipped"]
-    for label in FINETUNES:
-        if finetune(factor, label):
-            out.append(f"{label}={finetune(factor, label)[0]}")
+    for label in DLCTUS_RUNS:
+        if dlctus_run(factor, label):
+            out.append(f"{label}={dlctus_run(factor, label)[0]}")
     if thesis_path(factor, thesis_dir):
         out.append(f"thesis={thesis_path(factor, thesis_dir)}")
     return out

@@ -137,12 +137,13 @@ PRESETS = {
 PRESETS["hdr"] = dataclasses.replace(PRESETS["diverse"], dataset="data/hdr.h5",
                                      data_preset="hdr", model_overrides=(("hdr", True),))
 # game content (docs/weights.md): the diverse recipe on OpenArena's levels (data preset
-# game), meant to start from the shipped weights at a lower rate:
-#   python -m jtus.train --preset game --init-from jtus/weights/dlctus-x4.msgpack
+# game), meant to start from a diverse run's weights at a lower rate:
+#   python -m jtus.train --preset game --init-from experiments/weights/dlctus-diverse-x4.msgpack
 PRESETS["game"] = dataclasses.replace(PRESETS["diverse"], dataset="data/game.h5",
                                       data_preset="game", lr=3e-4, warmup_steps=100,
                                       epochs=20)
-# game content mixed with the randomized scenes: half of each batch from each
+# game content mixed with the randomized scenes: half of each batch from each; the
+# shipped weights' second stage (12 epochs at 4x, 8 at 2x; docs/weights.md)
 # (python -m jtus.data generate --preset diverse --out data/diverse.h5 first)
 PRESETS["game-mix"] = dataclasses.replace(PRESETS["game"], mix_dataset="data/diverse.h5",
                                           mix_fraction=0.5)

@@ -183,7 +183,7 @@ def test_comparison_table_systems_and_targets():
     ct = seqdata.load_script("comparison_table")
     for f in (4, 2):
         rows = ct.systems(f)
-        game = [lab for lab in ct.FINETUNES if ct.finetune(f, lab)]
+        game = [lab for lab in ct.DLCTUS_RUNS if ct.dlctus_run(f, lab)]
         assert [r[0] for r in rows] == ["jau", "tus", "dlctus", *game, *ct.SYSTEMS]
         for label, spec, status, budget in rows:
             if spec is None:
@@ -299,7 +299,8 @@ def test_comparison_table_only_rescores_the_named_systems(tmp_path, monkeypatch)
     assert data["4"]["made_by"]["dlctus"].endswith("--second")
     assert data["4"]["made_by"]["jau"].endswith("--first")
     assert "4x jau: `python experiments/comparison_table.py --first`" in note
-    assert "| dlctus | shipped | 30.00 / 0.5000 / 0.10000 |" in table
+    assert ("| dlctus | shipped (diverse, then game and diverse half and half) | "
+            "30.00 / 0.5000 / 0.10000 |") in table
     with pytest.raises(SystemExit):  # no weights to evaluate
         ct.main(["--factors", "4", *fam, "--only", "nsrr"])
     with pytest.raises(SystemExit):  # the earlier result has no 2x
