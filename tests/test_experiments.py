@@ -343,3 +343,15 @@ def test_static_hold_fall_is_measured_from_the_best_of_the_last_frames():
     assert sh.drift(np.linspace(20, 24, 24)) < 0
     with pytest.raises(ValueError, match="at least 12 frames"):
         sh.fall_and_gain([1.0] * 11)
+
+
+def test_candidate_scores_table_marks_validation_and_test_columns():
+    """experiments/candidate_scores.py: validation columns (which choose) are marked
+    apart from the test families (which only report), one row per model."""
+    cs = seqdata.load_script("candidate_scores")
+    res = {"diverse val": {"a": 30.0, "b": 30.5}, "game val": {"a": 40.0, "b": 39.0},
+           "random": {"a": 28.123, "b": 28.0}}
+    lines = cs.table(res).splitlines()
+    assert lines[0] == ("| model | diverse val (validation) | game val (validation) | "
+                        "random (test) |")
+    assert lines[2:] == ["| a | 30.00 | 40.00 | 28.12 |", "| b | 30.50 | 39.00 | 28.00 |"]
