@@ -244,8 +244,7 @@ def _nbytes(tree):
 def compile_step(config, model, step_fn, ts, plan):
     """``(step, memory)``: the jitted optimizer step compiled ahead of time for the run's
     window shapes, and the bytes XLA's buffer assignment holds at once for one call
-    (arguments, outputs not aliased to them, temporaries). The shapes come from one
-    batch of training crops read with a throwaway random stream. Windows of different
+    (arguments, outputs not aliased to them, temporaries). Windows of different
     lengths (none of the built-in plans has them) keep the jitted step for the others.
     The shapes come from one training crop (read with a throwaway random stream) with
     the batch axis set to the config's: nothing of the batch's size is allocated.
