@@ -12,18 +12,27 @@ thesis's released model (``--thesis``), where present; ``{f}`` in a model's path
 replaced by the factor. Two families, both held out:
 
 - ``mitsuba``: the independent renderer's ``hold`` clip (16 frames of camera glide, then
-  24 frames where only the jitter moves), imported like the other Mitsuba clips;
+  64 frames where only the jitter moves), imported like the other Mitsuba clips;
 - ``game``: the first frame of each held-out game test level (``jtus.sim.game``),
-  held still for 24 frames by ``jtus.sim.video.static_hold`` (needs
+  held still for 64 frames by ``jtus.sim.video.static_hold`` (needs
   ``bash data/fetch_game_assets.sh``; skipped with a note without it).
 
 Per model, family and factor, PSNR per frame over the hold (the game levels averaged
-frame by frame). ``fall``: the best PSNR among the last 12 frames minus the last frame's
-(0 for a model that keeps converging; the target is at most 0.1 dB); ``drift``: the
-fall of a least-squares line through those frames (the trend, where ``fall`` is set by
-the lowest phase of the jitter cycle); ``gain``: the last frame minus the hold's first.
+frame by frame). The jitter is the thesis's Halton(2,3) cycle of 16 positions at both
+factors, so a converged upsampler's PSNR is periodic with period 16: each jitter
+position adds a different sample, and the ripple within a cycle is its steady state,
+not a drift. Hence these readings:
+
+- ``fall``: the best PSNR among the last 12 frames minus the last frame's (the target's
+  measure, at most 0.1 dB; it reads the ripple as much as any trend);
+- ``cycle change``: the mean PSNR of the last jitter cycle minus that of the cycle before
+  (0 for a model that has converged, negative for one that drifts down), and ``ripple``:
+  the range of the last cycle;
+- ``overshoot``: the hold's best frame minus the last cycle's mean (how far a model
+  climbs past where it settles);
+- ``gain``: the last cycle's mean minus the hold's first frame.
+
 Writes ``docs/results/<name>/`` (``result.md``, ``result.json``, ``hold_x<f>.png``).
-Jitter: the thesis's Halton(2,3) cycle of 16.
 """
 
 from __future__ import annotations
@@ -45,8 +54,9 @@ from jtus.sim.video import VideoRenderer, static_hold
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-HOLD = 24      # frames held still
+HOLD = 64      # frames held still: four jitter cycles
 WINDOW = 12    # the frames the fall is measured over
+CYCLE = 16     # the thesis jitter sequence's length, at both factors
 MITSUBA_MOVING = 16  # the hold clip's frames before it holds (render_mitsuba.clip_hold)
 
 
@@ -70,12 +80,17 @@ def fall_and_gain(curve, window=WINDOW):
     return float(curve[-window:].max() - curve[-1]), float(curve[-1] - curve[0])
 
 
-def drift(curve, window=WINDOW):
-    """How far a straight line fitted (least squares) to the last ``window`` frames
-    falls from its first frame to its last, in dB (negative: it rises). Unlike ``fall``,
-    which one low frame sets, this reads the trend under the jitter cycle's ripple."""
-    c = np.asarray(curve, float)[-window:]
-    return float(-np.polyfit(np.arange(len(c)), c, 1)[0] * (len(c) - 1))
+def cycles(curve, cycle=CYCLE):
+    """``(change, ripple, last_mean)`` of a PSNR curve over a hold: the mean of the last
+    ``cycle`` frames minus the mean of the ``cycle`` frames before them (negative: the
+    model drifts down), the range (max - min) of the last cycle, and its mean."""
+    c = np.asarray(curve, float)
+    if c.ndim != 1 or len(c) < 2 * cycle:
+        raise ValueError(f"curve: expected at least {2 * cycle} frames (two jitter cycles), "
+                         f"got shape {c.shape}")
+    last, before = c[-cycle:], c[-2 * cycle:-cycle]
+    return float(last.mean() - before.mean()), float(last.max() - last.min()), \
+        float(last.mean())
 
 
 def mitsuba_curves(entries, factor, root):
@@ -107,7 +122,7 @@ def game_curves(entries, factor, holds):
             m = evaluate.video_metrics(e.model, e.params, frames, targets, factor)
             curves[e.label].append(m["psnr"])
     return {lab: np.mean(np.stack(c), 0) for lab, c in curves.items()}, \
-        {lab: max(fall_and_gain(c)[0] for c in cs) for lab, cs in curves.items()}
+        {lab: min(cycles(c)[0] for c in cs) for lab, cs in curves.items()}
 
 
 def plot(curves_by_family, factor, path):
@@ -116,8 +131,8 @@ def plot(curves_by_family, factor, path):
     for ax, fam in zip(axes[0], fams):
         for lab, c in curves_by_family[fam].items():
             ax.plot(np.arange(len(c)), c, label=lab)
-        ax.axvspan(len(c) - WINDOW - 0.5, len(c) - 0.5, color="0.9", zorder=0)
-        ax.set_title(f"{fam}, {factor}x (shaded: the last {WINDOW} frames)")
+        ax.axvspan(len(c) - CYCLE - 0.5, len(c) - 0.5, color="0.9", zorder=0)
+        ax.set_title(f"{fam}, {factor}x (shaded: the last jitter cycle)")
         ax.set_xlabel("frame of the hold")
         ax.set_ylabel("PSNR (dB)")
         ax.grid(alpha=0.3)
@@ -154,26 +169,33 @@ def main():
             families["game"] = game_curves(entries, f, holds[f])
         for fam, (curves, worst) in families.items():
             for lab, c in curves.items():
-                fall, gain = fall_and_gain(c)
-                d = drift(c)
-                w = "" if worst is None else f"{worst[lab]:.2f}"
-                rows.append(f"| {f}x | {fam} | {lab} | {c[0]:.2f} | {c[-1]:.2f} | {gain:+.2f} "
-                            f"| {fall:.2f} | {d:+.2f} | {w} |")
+                fall, _ = fall_and_gain(c)
+                change, ripple, last = cycles(c)
+                w = "" if worst is None else f"{worst[lab]:+.2f}"
+                over = float(np.max(c) - last)
+                rows.append(f"| {f}x | {fam} | {lab} | {c[0]:.2f} | {last:.2f} | "
+                            f"{last - c[0]:+.2f} | {fall:.2f} | {change:+.2f} | {ripple:.2f} "
+                            f"| {over:.2f} | {w} |")
                 data.setdefault(str(f), {}).setdefault(fam, {})[lab] = {
-                    "psnr": [float(v) for v in c], "fall": fall, "drift": d, "gain": gain,
-                    "worst_level_fall": None if worst is None else worst[lab]}
+                    "psnr": [float(v) for v in c], "fall": fall, "cycle_change": change,
+                    "ripple": ripple, "overshoot": over, "gain": last - c[0],
+                    "worst_level_cycle_change": None if worst is None else worst[lab]}
         plot({fam: c for fam, (c, _) in families.items()}, f,
              os.path.join(out_dir(args.name), f"hold_x{f}.png"))
-    table = ("| factor | family | model | first frame (dB) | last frame (dB) | gain (dB) | "
-             f"fall over the last {WINDOW} (dB) | drift over the last {WINDOW} (dB) | "
-             "worst level's fall (dB) |\n"
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |\n" + "\n".join(rows))
-    note = (f"Holds of {HOLD} frames. mitsuba: the `hold` clip's frames "
-            f"{MITSUBA_MOVING}-{MITSUBA_MOVING + HOLD - 1}; game: the mean curve over the "
-            f"levels {', '.join(args.levels)} at {args.size}x{args.size}, 16-spp targets. "
-            "fall: best of the last frames minus the last (target <= 0.1 dB); drift: the "
-            "fall of a straight line fitted to the last frames, from its first to its last "
-            "(the trend under the ripple of the jitter cycle; negative: rising).")
+    table = ("| factor | family | model | first frame (dB) | last cycle's mean (dB) | "
+             f"gain (dB) | fall over the last {WINDOW} (dB) | cycle change (dB) | "
+             "ripple (dB) | overshoot (dB) | worst level's cycle change (dB) |\n"
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n"
+             + "\n".join(rows))
+    note = (f"Holds of {HOLD} frames ({HOLD // CYCLE} cycles of the {CYCLE}-position jitter). "
+            f"mitsuba: the `hold` clip's frames {MITSUBA_MOVING}-{MITSUBA_MOVING + HOLD - 1}; "
+            f"game: the mean curve over the levels {', '.join(args.levels)} at "
+            f"{args.size}x{args.size}, 16-spp targets. fall: best of the last {WINDOW} frames "
+            "minus the last (target: at most 0.1 dB; on a converged model it reads the "
+            "jitter cycle's ripple); cycle change: the last cycle's mean minus the one before (negative: "
+            "drifting down; converged: about 0); ripple: the last cycle's range; overshoot: "
+            "the hold's best frame minus the last cycle's mean; gain: the last cycle's mean "
+            "minus the first frame.")
     if not have_game:
         note += " Game holds skipped: no assets (bash data/fetch_game_assets.sh)."
     write(args.name, table, data, note=note)

@@ -15,7 +15,11 @@ start of a video, ``has_prev`` False) or the reprojection leaves the image, ``y 
 - ``st-linear`` with θ (eq. 54-55): ``mean(|x| + |y| + θ(|x - y| - |x| - |y|))``:
   θ=0 is the L1 of the current and the previous error, θ=1 the temporal term
   ``|x - y|``;
-- ``ssim``: ``1 - SSIM``;
+- ``ssim``: ``1 - SSIM``; ``ssim-srgb``: ``1 - SSIM`` of the sRGB-coded images
+  (``sampling.srgb_encode``). SSIM's constants (C1 = 0.01², C2 = 0.03²) assume
+  display-coded values; on linear colour they swamp errors in dark regions (a dark game
+  level's linear values are a few thousandths), which the sRGB coding lifts 12.92-fold
+  near black;
 - ``kpn``: Herveau et al.'s alias-masked reference, gradient and temporal loss for
   their kernel-prediction network (``kpn_loss``).
 
@@ -31,7 +35,7 @@ import jax.numpy as jnp
 
 from jtus import metrics, perceptual, sampling
 
-NAMES = ("l1", "mse", "salvi", "st", "st-linear", "ssim", "kpn")
+NAMES = ("l1", "mse", "salvi", "st", "st-linear", "ssim", "ssim-srgb", "kpn")
 
 
 def warp_previous(prev, motion, factor, method):
@@ -65,6 +69,10 @@ def _ssim(out, target, *_):
     return 1.0 - jnp.mean(metrics.ssim(out, target))
 
 
+def _ssim_srgb(out, target, *_):
+    return _ssim(sampling.srgb_encode(out), sampling.srgb_encode(target))
+
+
 def _temporal(kind, theta, factor, method, out, target, prev_out, prev_target, has_prev,
               frame):
     x, y = errors(out, target, prev_out, prev_target, has_prev, frame, factor, method)
@@ -94,8 +102,8 @@ def make(name, factor, theta=0.5, method="bilinear", perceptual_weights=None,
     """The loss ``name`` (one of ``NAMES``) for up-sampling factor ``factor``; with
     ``perceptual_weights`` (an ``.npz`` of VGG-16, see ``jtus.perceptual``) the
     perceptual term is added with weight ``perceptual_weight``."""
-    if name in ("l1", "mse", "ssim"):
-        base = {"l1": _l1, "mse": _mse, "ssim": _ssim}[name]
+    if name in ("l1", "mse", "ssim", "ssim-srgb"):
+        base = {"l1": _l1, "mse": _mse, "ssim": _ssim, "ssim-srgb": _ssim_srgb}[name]
     elif name in ("salvi", "st", "st-linear"):
         if not 0.0 <= theta <= 1.0:
             raise ValueError(f"theta: expected a value in [0, 1], got {theta}")

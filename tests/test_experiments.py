@@ -324,23 +324,29 @@ def test_ablation_table_sets_each_gap_against_the_thesis():
     assert lines[-1] == "| L_st-linear θ=0.25 | -0.10 | - | - |"  # one seed: no spread
 
 
-def test_static_hold_fall_is_measured_from_the_best_of_the_last_frames():
+def test_static_hold_fall_and_cycle_change():
     """experiments/static_hold.py: the fall is the best PSNR of the last 12 frames minus
-    the last frame's (0 while a model keeps converging), the gain last minus first; a
-    hold shorter than the window is refused."""
+    the last frame's (0 while a model keeps converging), the gain last minus first; the
+    cycle change compares whole jitter cycles, so a periodic steady state reads 0 at any
+    phase and a drift reads its size; holds too short for either are refused."""
     sh = seqdata.load_script("static_hold")
     curve = [20.0] * 12 + [21.0, 22.0, 23.0, 22.5] + [22.25] * 8
     assert sh.fall_and_gain(curve) == pytest.approx((0.75, 2.25))
     assert sh.fall_and_gain(np.linspace(20, 24, 24)) == pytest.approx((0.0, 4.0))
     assert sh.fall_and_gain([30.0] * 11 + [29.0] * 13)[0] == pytest.approx(0.0)
-    # drift: a straight line's fall over the last 12, whatever the ripple on it
-    # (a +-0.3 dB ripple moves the fitted line by 0.3 * 6 / 143 dB a frame; the fall,
-    # set by the lowest frame, reads 1.6 dB)
-    rippled = np.linspace(30, 29, 12) + 0.3 * (-1.0) ** np.arange(12)
-    assert sh.drift(rippled) == pytest.approx(1.0 + 11 * 0.3 * 6 / 143, abs=1e-9)
-    assert sh.fall_and_gain(rippled)[0] == pytest.approx(1.6)
-    assert sh.drift(np.r_[np.zeros(12), np.linspace(30, 29, 12)]) == pytest.approx(1.0)
-    assert sh.drift(np.linspace(20, 24, 24)) < 0
+    # cycle change: a steady periodic ripple (the jitter cycle's steady state) reads 0,
+    # whatever its phase at the end, where the fall reads the ripple
+    ripple = 0.3 * np.sin(2 * np.pi * np.arange(64) / 16)
+    for shift in range(16):
+        change, rng_, last = sh.cycles(30.0 + np.roll(ripple, shift))
+        assert change == pytest.approx(0.0, abs=1e-12) and last == pytest.approx(30.0)
+        assert rng_ == pytest.approx(np.ptp(ripple))
+    assert sh.fall_and_gain(30.0 + ripple)[0] > 0.4
+    # a drift of 1 dB per cycle under the ripple reads -1
+    down = 30.0 + ripple - np.arange(64) / 16
+    assert sh.cycles(down)[0] == pytest.approx(-1.0)
+    with pytest.raises(ValueError, match="two jitter cycles"):
+        sh.cycles([1.0] * 31)
     with pytest.raises(ValueError, match="at least 12 frames"):
         sh.fall_and_gain([1.0] * 11)
 

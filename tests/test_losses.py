@@ -193,6 +193,43 @@ def test_mse_and_ssim_losses_against_numpy_and_skimage():
         pytest.approx(0.0, abs=1e-6)
 
 
+def test_ssim_srgb_loss_is_ssim_of_the_srgb_coded_images():
+    """``ssim-srgb``: 1 - SSIM (scikit-image, the metric's settings) of the images
+    through the sRGB transfer function, which matches the numpy encoder of the image
+    writers on [0, 1] (1e-6); dark linear values (a dark game level) weigh as much as
+    bright ones once coded, so the loss is far larger than plain SSIM's there."""
+    from skimage.metrics import structural_similarity
+
+    from jtus import sampling
+    from jtus.data.exr import linear_to_srgb
+
+    rng = np.random.default_rng(4)
+    out, tgt = rng.uniform(0, 0.02, size=(2, 2, 20, 24, 3)).astype(np.float32)
+    enc = lambda x: linear_to_srgb(x.astype(np.float64))  # noqa: E731
+    np.testing.assert_allclose(sampling.srgb_encode(jnp.asarray(out)), enc(out), atol=1e-6)
+    rest = (None, None, None, None)
+    ref = np.mean([structural_similarity(enc(o), enc(t), gaussian_weights=True, sigma=1.5,
+                                         use_sample_covariance=False, data_range=1,
+                                         channel_axis=-1) for o, t in zip(out, tgt)])
+    got = float(losses.make("ssim-srgb", 4)(jnp.asarray(out), jnp.asarray(tgt), *rest))
+    np.testing.assert_allclose(got, 1.0 - ref, rtol=0, atol=1e-6)
+    plain = float(losses.make("ssim", 4)(jnp.asarray(out), jnp.asarray(tgt), *rest))
+    assert got > 5 * plain, (got, plain)
+
+
+def test_srgb_encode_is_monotone_with_finite_gradients_past_the_range():
+    """A network's output below 0 or above 1 gets a finite gradient (the linear segment
+    continues below 0, the power curve above 1) and the encoding stays monotone."""
+    from jtus import sampling
+
+    x = jnp.linspace(-0.5, 2.0, 2001)
+    y = sampling.srgb_encode(x)
+    assert bool(jnp.all(jnp.diff(y) > 0))
+    g = jax.vmap(jax.grad(sampling.srgb_encode))(x)
+    assert bool(jnp.all(jnp.isfinite(g))) and float(g.min()) > 0
+    np.testing.assert_allclose(g[x <= sampling.color.SRGB_KNEE], 12.92, rtol=1e-6)
+
+
 def test_kpn_loss_reads_low_precision_frames_in_float32(rng):
     """A half-precision frame (``Frame`` allows any floating dtype) gives the loss of
     the same values in float32: the jitter-aligned input the alias mask compares with

@@ -202,7 +202,8 @@ def clip_turntable(t):
 
 def clip_hold(t):
     """Glyph wall, brick floor, thin posts: the camera glides for 16 frames, then nothing
-    moves but the jitter (frames 16-39): the convergence test of a temporal upsampler."""
+    moves but the jitter (frames 16-79, four cycles of the 16-position jitter): the
+    convergence test of a temporal upsampler."""
     u = min(t, 15)
     cam = look_at((-0.9 + 0.05 * u, 1.3, 3.0 - 0.02 * u), (0.1 + 0.03 * u, 1.1, 0.0))
     shapes = {
@@ -219,10 +220,10 @@ def clip_hold(t):
 
 CLIPS = {"library": clip_library, "fence": clip_fence, "turntable": clip_turntable}
 # a clip kept apart from the three above (its own --out): the static hold of
-# experiments/static_hold.py, 40 frames of which the last 24 hold still
+# experiments/static_hold.py, 80 frames of which the last 64 hold still
 HOLD_CLIPS = {"hold": clip_hold}
 ALL_CLIPS = {**CLIPS, **HOLD_CLIPS}
-HOLD_FRAMES = 40
+HOLD_FRAMES = 80
 
 
 # ---------------------------------------------------------------- Mitsuba

@@ -41,6 +41,20 @@ def ycbcr_to_rgb(ycbcr):
     return jnp.stack([r, g, b], -1)
 
 
+# ---------------------------------------------------------------- sRGB
+# The sRGB transfer function (IEC 61966-2-1): 12.92 x up to 0.0031308, then
+# 1.055 x^(1/2.4) - 0.055. Values below 0 (a network's overshoot) stay on the linear
+# segment and values above 1 on the power curve, so the encoding is monotone and its
+# derivative finite everywhere (12.92 at and below the knee).
+SRGB_KNEE = 0.0031308
+
+
+def srgb_encode(rgb):
+    """Linear RGB -> sRGB-coded values (display coding; differentiable, unclipped)."""
+    power = 1.055 * jnp.power(jnp.maximum(rgb, SRGB_KNEE), 1.0 / 2.4) - 0.055
+    return jnp.where(rgb <= SRGB_KNEE, 12.92 * rgb, power)
+
+
 # ---------------------------------------------------------------- HDR
 # The invertible tone map FSR 2 runs its history on (its ffx_fsr2_common.h ``Tonemap`` /
 # ``InverseTonemap``): ``c / (1 + max(r, g, b))`` maps linear HDR [0, inf) into [0, 1)
