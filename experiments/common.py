@@ -211,6 +211,24 @@ def thesis_path(factor, thesis_dir=THESIS_DIR):
     return path if path and os.path.exists(path) else None
 
 
+def second_stage(model, factor, root=ROOT):
+    """``(path, rows, config)`` of a comparison system's adopted second stage at
+    ``factor``: its ``diverse`` weights fine-tuned with the ``game-mix`` preset and
+    chosen on the validation splits (``docs/comparison.md``), exported as
+    ``experiments/weights/<model>-mix-x<f>`` (``.msgpack``, ``.json`` whose
+    ``init_from`` names the first stage, ``-training.csv``); None where none was
+    adopted."""
+    base = f"experiments/weights/{model}-mix-x{factor}"
+    files = (base + ".msgpack", base + "-training.csv", base + ".json")
+    if not all(os.path.exists(os.path.join(root, q)) for q in files):
+        return None
+    with open(os.path.join(root, files[1])) as fh:
+        rows = list(csv.DictReader(fh))
+    with open(os.path.join(root, files[2])) as fh:
+        config = json.load(fh)
+    return files[0], rows, config.get("config", config)
+
+
 # other trainings of DLCTUS beside the shipped weights: label -> (name, folder); exported
 # as experiments/weights/dlctus-<name>-x<f>, checkpoints in experiments/checkpoints/
 # <folder>-x<f>/. dlctus-diverse: the shipped weights' first stage (the diverse data

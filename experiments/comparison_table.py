@@ -23,7 +23,10 @@ that stage fine-tuned on the game data alone (``dlctus-game``) and each
 comparison system at its newest training on the ``diverse`` data: the exported weights
 of a finished run (``experiments/weights/<model>-x<f>.msgpack``) or, for a run still in
 progress, its committed checkpoint (``experiments/checkpoints/<model>-diverse-x<f>/``),
-labelled with its epoch. A system with no training on the ``diverse`` data is listed,
+labelled with its epoch; where a fine-tune of the finished run on the game and
+``diverse`` data was adopted on the validation splits
+(``experiments/weights/<model>-mix-x<f>``, ``common.second_stage``), that instead, its
+training budget counting both stages. A system with no training on the ``diverse`` data is listed,
 not evaluated: its older weights were trained on other data.
 
 Each cell is PSNR (dB) / SSIM / temporal error (L_st-linear's temporal term, θ=1).
@@ -40,7 +43,7 @@ import json
 import os
 
 from common import (DLCTUS_RUNS, ROOT, SYSTEMS, THESIS_DIR, command_line, dlctus_run,
-                    evaluate_clips, find,
+                    evaluate_clips, find, second_stage,
                     summarize, thesis_path, weights_path, write)
 
 from jtus import evaluate, loading
@@ -117,6 +120,10 @@ def systems(factor, thesis_dir=None):
         with open(cfg_path) as fh:
             cfg = json.load(fh)
         cfg = cfg.get("config", cfg)
+        stage = second_stage(m, factor, ROOT) if status == "finished" else None
+        if stage is not None:  # adopted on validation: the row is the fine-tune's
+            path, rows, cfg = stage
+            status = "diverse, then game and diverse half and half"
         out.append((m, f"{m}={os.path.join(ROOT, path)}", status, budget(cfg, rows)))
     return out
 

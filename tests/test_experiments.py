@@ -176,6 +176,25 @@ def test_a_fine_tunes_budget_adds_the_run_it_started_from(tmp_path, monkeypatch)
     assert ct.budget(dict(tune, init_from="w/missing.msgpack"), rows)["steps"] == 400
 
 
+def test_second_stage_needs_weights_config_and_log(tmp_path):
+    """experiments/common.second_stage: a comparison system's adopted fine-tune is
+    ``experiments/weights/<model>-mix-x<f>`` with its config and log beside it; a
+    missing file means none was adopted."""
+    common = seqdata.load_script("common")
+    base = tmp_path / "experiments" / "weights"
+    base.mkdir(parents=True)
+    assert common.second_stage("kpn", 4, str(tmp_path)) is None
+    (base / "kpn-mix-x4.msgpack").write_bytes(b"w")
+    (base / "kpn-mix-x4.json").write_text(json.dumps(
+        {"config": {"epochs": 1, "init_from": "experiments/weights/kpn-x4.msgpack"}}))
+    assert common.second_stage("kpn", 4, str(tmp_path)) is None  # no log
+    (base / "kpn-mix-x4-training.csv").write_text("epoch,step,val_psnr,seconds\n1,100,30,9\n")
+    path, rows, cfg = common.second_stage("kpn", 4, str(tmp_path))
+    assert path == "experiments/weights/kpn-mix-x4.msgpack" and rows[0]["step"] == "100"
+    assert cfg["init_from"] == "experiments/weights/kpn-x4.msgpack"
+    assert common.second_stage("kpn", 2, str(tmp_path)) is None
+
+
 def test_comparison_table_systems_and_targets():
     """experiments/comparison_table.py: every system is listed at both factors with a
     spec that loads (or none, when it has no training on the diverse data), and the
