@@ -192,10 +192,10 @@ def main():
             f"game: the mean curve over the levels {', '.join(args.levels)} at "
             f"{args.size}x{args.size}, 16-spp targets. fall: best of the last {WINDOW} frames "
             "minus the last (target: at most 0.1 dB; on a converged model it reads the "
-            "jitter cycle's ripple); cycle change: the last cycle's mean minus the one before (negative: "
-            "drifting down; converged: about 0); ripple: the last cycle's range; overshoot: "
-            "the hold's best frame minus the last cycle's mean; gain: the last cycle's mean "
-            "minus the first frame.")
+            "jitter cycle's ripple); cycle change: the last cycle's mean minus the one "
+            "before (negative: drifting down; converged: about 0); ripple: the last "
+            "cycle's range; overshoot: the hold's best frame minus the last cycle's mean; "
+            "gain: the last cycle's mean minus the first frame.")
     if not have_game:
         note += " Game holds skipped: no assets (bash data/fetch_game_assets.sh)."
     write(args.name, table, data, note=note)

@@ -41,7 +41,7 @@ from jax.experimental import multihost_utils
 from matplotlib.figure import Figure
 from tqdm import tqdm
 
-from jtus import checkpoint, cli, evaluate, loading, models, recipe, rollout, sharding
+from jtus import checkpoint, cli, evaluate, loading, losses, models, recipe, rollout, sharding
 from jtus import config as run_config
 from jtus.config import PRESETS, REMAT_CHOICES, Config
 from jtus.data.dataset import Dataset
@@ -395,6 +395,13 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
 # ---------------------------------------------------------------- CLI
 
 
+# help for the Config fields whose values are names
+_FIELD_HELP = {
+    "loss": f"one of {', '.join(losses.NAMES)} (jtus.losses); default: the preset's",
+    "model": f"one of {', '.join(models.TRAINABLE)}; default: the preset's",
+}
+
+
 def _parser():
     p = argparse.ArgumentParser(prog="python -m jtus.train", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -417,7 +424,7 @@ def _parser():
             p.add_argument(flag, action=argparse.BooleanOptionalAction, default=None)
         else:
             typ = {"int": int, "float": float}.get(str(f.type), str)
-            p.add_argument(flag, type=typ, default=None)
+            p.add_argument(flag, type=typ, default=None, help=_FIELD_HELP.get(f.name))
     p.add_argument("--remat", choices=tuple(REMAT_CHOICES), default=None,
                    help="rematerialization of the scanned step (docs/performance.md): none "
                         "(the default), full, a jax.checkpoint policy (dots, dots_no_batch), "

@@ -15,7 +15,8 @@ __all__ = [
     "halton", "inside_mask", "inverse_tonemap", "jitter_aligned_upsample", "jitter_cell",
     "jitter_sequence", "keys_weights", "METHODS", "neighbourhood", "pad_edge", "pixel_grid",
     "pixel_shuffle", "pixel_unshuffle", "PYTORCH_A", "reproject_coords", "rgb_to_ycbcr",
-    "rgb_to_ycocg", "sample", "srgb_encode", "TAPS", "thesis_2x2", "thesis_4x4", "tonemap", "upsample",
+    "rgb_to_ycocg", "sample", "srgb_encode", "TAPS", "thesis_2x2", "thesis_4x4", "tonemap",
+    "upsample",
     "van_der_corput", "warp_plan", "warp_read", "WarpPlan", "ycbcr_to_rgb", "ycocg_to_rgb",
     "zero_upsample",
 ]
