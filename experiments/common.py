@@ -219,14 +219,19 @@ def second_stage(model, factor, root=ROOT):
     ``init_from`` names the first stage, ``-training.csv``); None where none was
     adopted."""
     base = f"experiments/weights/{model}-mix-x{factor}"
-    files = (base + ".msgpack", base + "-training.csv", base + ".json")
-    if not all(os.path.exists(os.path.join(root, q)) for q in files):
+    return _saved_run(root, base + ".msgpack", base + "-training.csv", base + ".json")
+
+
+def _saved_run(root, path, log, cfg):
+    """``(path, rows, config)`` of saved weights with their per-epoch log and config
+    (paths relative to ``root``), or None when any of the three is missing."""
+    if not all(os.path.exists(os.path.join(root, q)) for q in (path, log, cfg)):
         return None
-    with open(os.path.join(root, files[1])) as fh:
+    with open(os.path.join(root, log)) as fh:
         rows = list(csv.DictReader(fh))
-    with open(os.path.join(root, files[2])) as fh:
+    with open(os.path.join(root, cfg)) as fh:
         config = json.load(fh)
-    return files[0], rows, config.get("config", config)
+    return path, rows, config.get("config", config)
 
 
 # other trainings of DLCTUS beside the shipped weights: label -> (name, folder); exported
@@ -241,20 +246,12 @@ def dlctus_run(factor, label="dlctus-game", root=ROOT):
     ``factor``: its exported weights (``experiments/weights/dlctus-<name>-x<f>``) or its
     committed checkpoint (``experiments/checkpoints/<folder>-x<f>/``); None if neither."""
     name, folder = DLCTUS_RUNS[label]
-    for path, log, cfg in (
-            (f"experiments/weights/dlctus-{name}-x{factor}.msgpack",
-             f"experiments/weights/dlctus-{name}-x{factor}-training.csv",
-             f"experiments/weights/dlctus-{name}-x{factor}.json"),
-            (f"experiments/checkpoints/{folder}-x{factor}/checkpoint.msgpack",
-             f"experiments/checkpoints/{folder}-x{factor}/metrics.csv",
-             f"experiments/checkpoints/{folder}-x{factor}/config.json")):
-        if all(os.path.exists(os.path.join(root, q)) for q in (path, log, cfg)):
-            with open(os.path.join(root, log)) as fh:
-                rows = list(csv.DictReader(fh))
-            with open(os.path.join(root, cfg)) as fh:
-                config = json.load(fh)
-            return path, rows, config.get("config", config)
-    return None
+    weights = f"experiments/weights/dlctus-{name}-x{factor}"
+    ckpt = f"experiments/checkpoints/{folder}-x{factor}"
+    return (_saved_run(root, weights + ".msgpack", weights + "-training.csv",
+                       weights + ".json")
+            or _saved_run(root, f"{ckpt}/checkpoint.msgpack", f"{ckpt}/metrics.csv",
+                          f"{ckpt}/config.json"))
 
 
 def summarize(rows, epochs_planned):

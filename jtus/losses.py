@@ -102,8 +102,9 @@ def make(name, factor, theta=0.5, method="bilinear", perceptual_weights=None,
     """The loss ``name`` (one of ``NAMES``) for up-sampling factor ``factor``; with
     ``perceptual_weights`` (an ``.npz`` of VGG-16, see ``jtus.perceptual``) the
     perceptual term is added with weight ``perceptual_weight``."""
-    if name in ("l1", "mse", "ssim", "ssim-srgb"):
-        base = {"l1": _l1, "mse": _mse, "ssim": _ssim, "ssim-srgb": _ssim_srgb}[name]
+    plain = {"l1": _l1, "mse": _mse, "ssim": _ssim, "ssim-srgb": _ssim_srgb}
+    if name in plain:
+        base = plain[name]
     elif name in ("salvi", "st", "st-linear"):
         if not 0.0 <= theta <= 1.0:
             raise ValueError(f"theta: expected a value in [0, 1], got {theta}")
