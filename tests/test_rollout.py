@@ -131,7 +131,8 @@ def test_remat_and_unroll_equal_plain():
             np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
 
 
-@pytest.mark.parametrize("warp", ["bicubic", "bicubic5"])  # separable; from coordinates
+# separable; from coordinates (bicubic5 in the long run: the same hoisting, 30 s)
+@pytest.mark.parametrize("warp", ["bicubic", pytest.param("bicubic5", marks=pytest.mark.long)])
 def test_hoisted_preparation_equals_the_plain_step_float64(x64, warp):
     """``Model.prepare`` run for the whole window before the scan, then ``advance``
     inside it, gives the plain scan's loss and gradients (float64, 1e-12), with a reset
@@ -223,7 +224,8 @@ def test_formulations_equal_standard(formulation, factor):
     np.testing.assert_allclose(s2.history, s1.history, rtol=0, atol=1e-6)
 
 
-@pytest.mark.parametrize("factor", [2, 4])
+# 2x is in the long run (30 s of compiling on 2 cores): the same kernel-row selection
+@pytest.mark.parametrize("factor", [pytest.param(2, marks=pytest.mark.long), 4])
 def test_opt2_gradients_equal_standard_float64(x64, factor):
     # opt2 never builds the zero-up-sampled input: its kernel rows are picked per frame
     # from the jitter; the parameter gradients must still be the standard network's.

@@ -87,6 +87,39 @@ def test_input_pixel_is_a_single_sample_at_its_jittered_position():
     assert np.abs(np.asarray(centre["color"]) - color[ij[:, 0], ij[:, 1]]).max() > 1e-3
 
 
+def test_targets_cast_colour_alone_and_match_the_full_renderer():
+    """Targets are cast without depth and motion (``make_split_renderer``'s ``shade``),
+    inputs with them (``geometry``); on a scene with every effect (object motion
+    included) both must give ``make_renderer``'s values, called on the same chunks
+    (XLA may round one fusion differently: 1e-6, a few float32 ulps of a value <= 1).
+    The colour alone must count fewer FLOPs per point than the whole."""
+    scene = sim.get_scene("everything")
+    r = VideoRenderer(scene, (32, 32), (4,), spp=4)
+    state = paths.timeline(r.scene, "train", 0, 3, 1.0)[2]
+    pix = np.arange(32 * 32)
+    jy, jx = np.divmod(pix.astype(np.float32), np.float32(32))
+    xy = np.concatenate([np.stack([(jx + ox) / 32, (jy + oy) / 32], -1) for ox, oy in r.offsets])
+    arr, angle = render.state_arrays(state), r.pixel_angle(state)
+    full = render.make_renderer(scene)
+    c = r.chunk
+    whole = [full(arr, jnp.asarray(xy[i:i + c]), angle) for i in range(0, len(xy), c)]
+    ref = np.concatenate([np.asarray(w["color"]) for w in whole])
+    ref = ref.reshape(4, -1, 3).mean(0, dtype=np.float64).astype(np.float32)
+    np.testing.assert_allclose(r.target(state), ref.reshape(32, 32, 3), rtol=0, atol=1e-6)
+    points = r.points(state, xy[:c])
+    assert set(points) == {"color", "depth", "motion"}
+    for k in points:
+        np.testing.assert_allclose(points[k], np.asarray(whole[0][k]), rtol=0, atol=1e-6)
+    xy0 = jnp.zeros((256, 2), jnp.float32)
+
+    def flops(fn):
+        cost = fn.lower(arr, xy0, 0.01).compile().cost_analysis()
+        return float((cost[0] if isinstance(cost, (list, tuple)) else cost)["flops"])
+
+    shade, _ = render.make_split_renderer(scene)
+    assert flops(shade) < flops(full)
+
+
 def _flops(scene):
     return render.flops_per_point(scene, 1024)
 

@@ -6,7 +6,9 @@ returns linear RGB ``[N,3]``, device depth ``[N,1]`` and, with ``motion=True``, 
 backward motion ``[N,2]`` in normalized screen units. Which code is traced is decided
 by ``scene.effects`` at build time: no shadow rays without ``shadows``, no texture
 filter without ``texture_detail``, no specular lobe without ``specular``, no per-object
-previous poses without ``object_motion``, and so on.
+previous poses without ``object_motion``, and so on. ``make_split_renderer(scene)``
+gives the same work as two functions, colour and the hits first, depth and motion from
+those hits second, so that the supersampled targets skip the second.
 
 Camera: a pinhole looking along ``forward``; the ray through ``xy`` is
 ``forward + (2x-1) tan_x right + (1-2y) tan_y up``, so the ray parameter of a hit is
@@ -252,15 +254,21 @@ def _screen_motion(scene, st, state, x, p_obj, obj, dn, hit, xy):
     return jnp.where(hit[:, None], moved, moved_sky) - xy
 
 
-def make_renderer(scene: Scene, motion: bool = True):
-    """The jitted ``render(state, xy [N,2], pixel_angle) -> dict`` for this scene.
+def _primary(state, xy):
+    """Each screen point's camera ray: origin and (unnormalized) direction ``[N,3]``."""
+    cam = state["camera"]
+    sx = 2 * xy[:, 0:1] - 1
+    sy = 1 - 2 * xy[:, 1:2]
+    d = (cam["forward"] + sx * cam["tan_half"][0] * cam["right"]
+         + sy * cam["tan_half"][1] * cam["up"])
+    return jnp.broadcast_to(cam["eye"], d.shape), d
 
-    ``pixel_angle`` is the texture filter's footprint in radians per sample (the
-    mip bias is folded into it). The dict holds ``color [N,3]`` (clamped to [0,1]; with
-    ``hdr`` linear radiance >= 0, highlights scaled by ``scene.highlight_gain``),
-    ``depth [N,1]`` and, with ``motion``, ``motion [N,2]`` (normalized units). Only
-    the effects the scene declares are traced.
-    """
+
+def _parts(scene: Scene):
+    """The renderer in two pieces: ``shade(state, xy, pixel_angle) -> (color, t, obj)``,
+    the costly one (intersection, texture, lighting), and ``geometry(state, xy, t,
+    obj, motion) -> dict`` of ``depth`` and ``motion`` from the hits it found (a few
+    dozen FLOPs a point)."""
     st = _Static(scene)
     tex_kinds = (sorted({TEXTURES[t] for t in st.tex if t != 0})
                  if scene.has("texture_detail") else [])
@@ -269,20 +277,21 @@ def make_renderer(scene: Scene, motion: bool = True):
     hdr = scene.has("hdr")
     gain = scene.highlight_gain if hdr else 1.0
 
-    def render(state, xy, pixel_angle):
-        cam = state["camera"]
+    def hit_point(state, o, d, t, obj):
         pos = state["obj_pos"][st.index]
         yaw = state["obj_yaw"][st.index]
-        sx = 2 * xy[:, 0:1] - 1
-        sy = 1 - 2 * xy[:, 1:2]
-        d = (cam["forward"] + sx * cam["tan_half"][0] * cam["right"]
-             + sy * cam["tan_half"][1] * cam["up"])
-        o = jnp.broadcast_to(cam["eye"], d.shape)
-        t, obj = _intersect(st, o, d, pos, yaw)
         hit = jnp.isfinite(t)
         t_safe = jnp.where(hit, t, 1.0)
         x = o + t_safe[:, None] * d
         p_obj = _to_object(x - pos[obj], yaw[obj])
+        return hit, t_safe, x, p_obj
+
+    def shade(state, xy, pixel_angle):
+        pos = state["obj_pos"][st.index]
+        yaw = state["obj_yaw"][st.index]
+        o, d = _primary(state, xy)
+        t, obj = _intersect(st, o, d, pos, yaw)
+        hit, t_safe, x, p_obj = hit_point(state, o, d, t, obj)
         n_obj, u, v = _normal_uv(st, p_obj, obj)
         n = _to_world(n_obj, yaw[obj])
         dn = d / jnp.linalg.norm(d, axis=-1, keepdims=True)
@@ -293,15 +302,50 @@ def make_renderer(scene: Scene, motion: bool = True):
         sky = horizon + (zenith - horizon) * jnp.clip(dn[:, 1:2], 0.0, 1.0)
         color = jnp.where(hit[:, None], color, sky)
         # LDR scenes clamp to display range; hdr keeps linear radiance (>= 0)
-        out = {"color": jnp.maximum(color, 0.0) if hdr else jnp.clip(color, 0.0, 1.0)}
+        return (jnp.maximum(color, 0.0) if hdr else jnp.clip(color, 0.0, 1.0)), t, obj
+
+    def geometry(state, xy, t, obj, motion=True):
+        o, d = _primary(state, xy)
+        hit, t_safe, x, p_obj = hit_point(state, o, d, t, obj)
         z = jnp.maximum(t_safe, near)
         ndc = jnp.clip(far / (far - near) * (1 - near / z), 0, 1)
-        out["depth"] = jnp.where(hit, ndc, 1.0)[:, None]
+        out = {"depth": jnp.where(hit, ndc, 1.0)[:, None]}
         if motion:
+            dn = d / jnp.linalg.norm(d, axis=-1, keepdims=True)
             out["motion"] = _screen_motion(scene, st, state, x, p_obj, obj, dn, hit, xy)
         return out
 
+    return shade, geometry
+
+
+def make_renderer(scene: Scene, motion: bool = True):
+    """The jitted ``render(state, xy [N,2], pixel_angle) -> dict`` for this scene.
+
+    ``pixel_angle`` is the texture filter's footprint in radians per sample (the
+    mip bias is folded into it). The dict holds ``color [N,3]`` (clamped to [0,1]; with
+    ``hdr`` linear radiance >= 0, highlights scaled by ``scene.highlight_gain``),
+    ``depth [N,1]`` and, with ``motion``, ``motion [N,2]`` (normalized units). Only
+    the effects the scene declares are traced.
+    """
+    shade, geometry = _parts(scene)
+
+    def render(state, xy, pixel_angle):
+        color, t, obj = shade(state, xy, pixel_angle)
+        return {"color": color, **geometry(state, xy, t, obj, motion)}
+
     return jax.jit(render)
+
+
+def make_split_renderer(scene: Scene):
+    """``make_renderer``'s work as two jitted functions, for callers that need depth
+    and motion for only some of their points (``jtus.sim.video``: the inputs, not the
+    supersampled targets): ``shade(state, xy, pixel_angle) -> (color, t, obj)`` and
+    ``geometry(state, xy, t, obj) -> {"depth", "motion"}``. Their outputs are
+    ``make_renderer``'s; on the hand-made scenes the colour alone costs 0.6-0.85x the
+    whole (XLA's FLOP count, ``tests/test_sim.py``), and the second function compiles
+    in a fraction of the first's time."""
+    shade, geometry = _parts(scene)
+    return jax.jit(shade), jax.jit(geometry)
 
 
 def pixel_angle(camera_tan_half_y, height_hr, spp_match=1):

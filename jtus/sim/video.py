@@ -56,7 +56,9 @@ class VideoRenderer:
             self._mesh = MeshRenderer(scene)
         else:
             self._mesh = None
-            self._render = render.make_renderer(scene, motion=True)
+            # colour for every point, depth and motion only where asked (the inputs):
+            # the supersampled targets need colour alone
+            self._shade, self._geometry = render.make_split_renderer(scene)
 
     def timeline(self, split, index, length):
         """The per-frame states of one video."""
@@ -64,9 +66,9 @@ class VideoRenderer:
             return walk.timeline(self._mesh, split, index, length, self.W / self.H)
         return paths.timeline(self.scene, split, index, length, self.W / self.H)
 
-    def _cast(self, state: paths.FrameState, xy):
+    def _cast(self, state: paths.FrameState, xy, color_only=False):
         """Render normalized screen points ``[N,2]`` in fixed-size chunks: a dict of
-        ``[N,...]`` numpy arrays."""
+        ``[N,...]`` numpy arrays, ``color`` alone with ``color_only``."""
         if self._mesh is not None:
             out = {}
             for i in range(0, len(xy), self.chunk):
@@ -79,7 +81,12 @@ class VideoRenderer:
         xy = np.concatenate([np.asarray(xy, np.float32), np.full((pad, 2), 0.5, np.float32)])
         arr = render.state_arrays(state)
         angle = self.pixel_angle(state)
-        parts = [self._render(arr, jnp.asarray(xy[i:i + c]), angle) for i in range(0, len(xy), c)]
+        parts = []
+        for i in range(0, len(xy), c):
+            pts = jnp.asarray(xy[i:i + c])
+            color, t, obj = self._shade(arr, pts, angle)
+            parts.append({"color": color} if color_only else
+                         {"color": color, **self._geometry(arr, pts, t, obj)})
         return {k: np.concatenate([np.asarray(p[k]) for p in parts])[:n] for k in parts[0]}
 
     def pixel_angle(self, state: paths.FrameState):
@@ -105,7 +112,8 @@ class VideoRenderer:
         jy, jx = np.divmod(pixels.astype(np.float32), np.float32(self.W))
         xy = np.concatenate([np.stack([(jx + ox) / self.W, (jy + oy) / self.H], -1)
                              for ox, oy in offsets])
-        col = self._cast(state, xy)["color"].reshape(len(offsets), len(pixels), 3)
+        col = self._cast(state, xy, color_only=True)["color"].reshape(len(offsets),
+                                                                      len(pixels), 3)
         return col.mean(0, dtype=np.float64), col
 
     def target(self, state: paths.FrameState):
