@@ -341,9 +341,10 @@ def make_split_renderer(scene: Scene):
     and motion for only some of their points (``jtus.sim.video``: the inputs, not the
     supersampled targets): ``shade(state, xy, pixel_angle) -> (color, t, obj)`` and
     ``geometry(state, xy, t, obj) -> {"depth", "motion"}``. Their outputs are
-    ``make_renderer``'s; on the hand-made scenes the colour alone costs 0.6-0.85x the
-    whole (XLA's FLOP count, ``tests/test_sim.py``), and the second function compiles
-    in a fraction of the first's time."""
+    ``make_renderer``'s (to 1e-6, ``tests/test_sim.py``). The colour alone counts
+    0.77-0.92x the whole's FLOPs per point on the hand-made scenes measured, 0.98x on a
+    randomized one (``docs/results/target-colour-only/``); the second function is
+    small and compiles in a fraction of the first's time."""
     shade, geometry = _parts(scene)
     return jax.jit(shade), jax.jit(geometry)
 
