@@ -342,9 +342,9 @@ def make_split_renderer(scene: Scene):
     supersampled targets): ``shade(state, xy, pixel_angle) -> (color, t, obj)`` and
     ``geometry(state, xy, t, obj) -> {"depth", "motion"}``. Their outputs are
     ``make_renderer``'s (to 1e-6, ``tests/test_sim.py``). The colour alone counts
-    0.77-0.92x the whole's FLOPs per point on the hand-made scenes measured, 0.98x on a
-    randomized one (``docs/results/target-colour-only/``); the second function is
-    small and compiles in a fraction of the first's time."""
+    0.85-0.94x the whole's FLOPs per point on the hand-made scenes measured, 0.98-0.99x
+    on randomized ones, and the two compile in about the whole's time
+    (``experiments/renderer_split.py``)."""
     shade, geometry = _parts(scene)
     return jax.jit(shade), jax.jit(geometry)
 
