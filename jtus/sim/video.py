@@ -68,7 +68,8 @@ class VideoRenderer:
 
     def _cast(self, state: paths.FrameState, xy, color_only=False):
         """Render normalized screen points ``[N,2]`` in fixed-size chunks: a dict of
-        ``[N,...]`` numpy arrays, ``color`` alone with ``color_only``."""
+        ``[N,...]`` numpy arrays; ``color`` alone with ``color_only`` (a mesh scene's
+        caster computes all three either way)."""
         if self._mesh is not None:
             out = {}
             for i in range(0, len(xy), self.chunk):
