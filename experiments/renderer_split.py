@@ -24,10 +24,8 @@ from jtus.sim import get_scene, paths, render
 def _counts(fn, *args):
     """``(FLOP, bytes, compile seconds)`` of ``fn`` compiled for these arguments."""
     t0 = time.perf_counter()
-    compiled = fn.lower(*args).compile()
+    cost = render.compiled_cost(fn, *args)
     seconds = time.perf_counter() - t0
-    cost = compiled.cost_analysis()
-    cost = cost[0] if isinstance(cost, (list, tuple)) else cost
     return float(cost["flops"]), float(cost.get("bytes accessed", 0.0)), seconds
 
 

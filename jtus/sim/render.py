@@ -360,8 +360,14 @@ def flops_per_point(scene: Scene, points=256):
     ``scene`` with its declared effects: the compiled renderer over ``points`` points,
     divided by their number. Unlike a wall time it does not move with the machine's
     load, so it shows that an undeclared effect costs nothing."""
-    fn = make_renderer(scene, motion=True)
     state = state_arrays(timeline(scene, "train", 0, 1, 1.0)[0])
-    cost = fn.lower(state, jnp.zeros((points, 2), jnp.float32), 0.01).compile().cost_analysis()
-    cost = cost[0] if isinstance(cost, (list, tuple)) else cost
+    cost = compiled_cost(make_renderer(scene, motion=True), state,
+                         jnp.zeros((points, 2), jnp.float32), 0.01)
     return float(cost["flops"]) / points
+
+
+def compiled_cost(fn, *args):
+    """XLA's ``cost_analysis`` of the jitted ``fn`` compiled for ``args``: a dict with
+    ``flops`` and ``bytes accessed`` among its keys."""
+    cost = fn.lower(*args).compile().cost_analysis()
+    return cost[0] if isinstance(cost, (list, tuple)) else cost
