@@ -277,9 +277,11 @@ def _parts(scene: Scene):
     hdr = scene.has("hdr")
     gain = scene.highlight_gain if hdr else 1.0
 
-    def hit_point(state, o, d, t, obj):
-        pos = state["obj_pos"][st.index]
-        yaw = state["obj_yaw"][st.index]
+    def poses(state):
+        """The visible objects' positions and yaws, in ``st``'s order."""
+        return state["obj_pos"][st.index], state["obj_yaw"][st.index]
+
+    def hit_point(pos, yaw, o, d, t, obj):
         hit = jnp.isfinite(t)
         t_safe = jnp.where(hit, t, 1.0)
         x = o + t_safe[:, None] * d
@@ -287,11 +289,10 @@ def _parts(scene: Scene):
         return hit, t_safe, x, p_obj
 
     def shade(state, xy, pixel_angle):
-        pos = state["obj_pos"][st.index]
-        yaw = state["obj_yaw"][st.index]
+        pos, yaw = poses(state)
         o, d = _primary(state, xy)
         t, obj = _intersect(st, o, d, pos, yaw)
-        hit, t_safe, x, p_obj = hit_point(state, o, d, t, obj)
+        hit, t_safe, x, p_obj = hit_point(pos, yaw, o, d, t, obj)
         n_obj, u, v = _normal_uv(st, p_obj, obj)
         n = _to_world(n_obj, yaw[obj])
         dn = d / jnp.linalg.norm(d, axis=-1, keepdims=True)
@@ -306,7 +307,7 @@ def _parts(scene: Scene):
 
     def geometry(state, xy, t, obj, motion=True):
         o, d = _primary(state, xy)
-        hit, t_safe, x, p_obj = hit_point(state, o, d, t, obj)
+        hit, t_safe, x, p_obj = hit_point(*poses(state), o, d, t, obj)
         z = jnp.maximum(t_safe, near)
         ndc = jnp.clip(far / (far - near) * (1 - near / z), 0, 1)
         out = {"depth": jnp.where(hit, ndc, 1.0)[:, None]}
