@@ -5,6 +5,9 @@ from __future__ import annotations
 import os
 import signal
 import sys
+import warnings
+
+from jtus.files import UnknownKeyWarning
 
 
 class Terminated(SystemExit):
@@ -28,15 +31,28 @@ def sigterm_as_exit():
         signal.signal(signal.SIGTERM, _exit_on_term)
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None,
+                  _default=warnings.showwarning):
+    if issubclass(category, UnknownKeyWarning):
+        print(f"warning: {message}", file=sys.stderr if file is None else file)
+    else:
+        _default(message, category, filename, lineno, file, line)
+
+
 def run(main):
-    """``sys.exit(main())`` for a tool's ``__main__``; after a SIGTERM has unwound (its
-    files cleaned up), the process ends at once with status 143. A normal interpreter
-    shutdown there can crash (SIGSEGV, measured on about half of the SIGTERMs during
-    ``data generate``) while XLA's threads still run the interrupted computation."""
+    """``sys.exit(main())`` for a tool's ``__main__``, printing jtus's warnings about
+    input files as one ``warning:`` line each (Python's format adds a source line).
+    After a SIGTERM has unwound (its files cleaned up), the process ends at once with
+    status 143. A normal interpreter shutdown there can crash (SIGSEGV, measured on
+    about half of the SIGTERMs during ``data generate``) while XLA's threads still run
+    the interrupted computation."""
+    shown, warnings.showwarning = warnings.showwarning, _show_warning
     try:
         code = main()
     except Terminated as e:
         code = e.code
+    finally:
+        warnings.showwarning = shown
     if _TERMINATED:
         # also when the exception was swallowed on its way (raised inside a ``__del__``
         # or a C callback, Python only prints it): the work then finished, its files

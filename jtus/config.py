@@ -159,7 +159,7 @@ def to_json(config: Config) -> str:
 def from_json(path) -> Config:
     """The ``Config`` in the JSON file ``path``; ``ValueError`` naming the file on an
     unknown key or an invalid value."""
-    data = read_json_fields(path, Config, "config keys")
+    data = read_json_fields(path, Config, "config key")
     over = data.get("model_overrides", ())
     if not isinstance(over, (list, tuple)) or not all(
             isinstance(x, (list, tuple)) and len(x) == 2 and isinstance(x[0], str) for x in over):

@@ -9,10 +9,32 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import difflib
 import json
 import os
 import shutil
 import tempfile
+import warnings
+
+
+class UnknownKeyWarning(UserWarning):
+    """A key that a jtus file format does not define; it is ignored. The command-line
+    tools print it as one ``warning:`` line; ``warnings.simplefilter("error",
+    UnknownKeyWarning)`` makes it an exception in code that calls jtus."""
+
+
+def drop_unknown_keys(where, data, fields, what="key"):
+    """``data`` without the keys that are not in ``fields``, warning once per dropped key
+    with ``where`` (the file and object), ``what`` the key is, the key, the nearest
+    known key when one is close (a likely misspelling) and the keys that are known."""
+    fields = sorted(fields)
+    unknown = [k for k in data if k not in fields]
+    for k in unknown:
+        near = difflib.get_close_matches(str(k), fields, n=1)
+        hint = f" (did you mean {near[0]!r}?)" if near else ""
+        warnings.warn(f"{where}: unknown {what} {k!r} ignored{hint}; expected some of {fields}",
+                      UnknownKeyWarning, stacklevel=3)
+    return {k: v for k, v in data.items() if k not in unknown}
 
 
 @contextlib.contextmanager
@@ -39,8 +61,9 @@ def atomic_path(path, suffix=".tmp"):
 
 def read_json_fields(path, cls, what):
     """A JSON file holding one object whose keys are fields of dataclass ``cls``:
-    the dict, or ``ValueError`` naming ``path`` (invalid JSON, not an object, unknown
-    keys; ``what`` names the kind of keys in messages, e.g. "config keys")."""
+    the dict without keys that are not fields (each warned about, naming ``path`` and the
+    key: ``drop_unknown_keys``), or ``ValueError`` naming ``path`` (invalid JSON, not an
+    object; ``what`` names the kind of key in messages, e.g. "config key")."""
     if os.path.isdir(path):
         raise ValueError(f"{path}: is a folder; expected a JSON file")
     try:
@@ -54,10 +77,7 @@ def read_json_fields(path, cls, what):
     fields = {f.name for f in dataclasses.fields(cls)}
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a JSON object of {cls.__name__} keys")
-    unknown = sorted(set(data) - fields)
-    if unknown:
-        raise ValueError(f"{path}: unknown {what} {unknown}; expected some of {sorted(fields)}")
-    return data
+    return drop_unknown_keys(path, data, fields, what)
 
 
 def _existing_parent(path):

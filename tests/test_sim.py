@@ -1,12 +1,14 @@
 """The simulator: motion vectors, jitter, effect gating (cost and pixels), determinism."""
 
 import dataclasses
+import json
 
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from jtus import sampling, sim
+from jtus.files import UnknownKeyWarning
 from jtus.sim import paths, render
 from jtus.sim.video import VideoRenderer
 
@@ -216,8 +218,36 @@ def test_scene_json_round_trip_and_errors(tmp_path):
         sim.from_json('{"name": "x", "effects": ["bloom"], "objects": []}')
     with pytest.raises(ValueError, match=r"objects\[0\].kind"):
         sim.from_json('{"name": "x", "effects": [], "objects": [{"kind": "torus"}]}')
-    with pytest.raises(ValueError, match="unknown keys"):
-        sim.from_json('{"name": "x", "effects": [], "objects": [], "colour": 1}')
+    one = '{"name": "x", "effects": [], "objects": [{"kind": "plane"}]'
+    with pytest.warns(UnknownKeyWarning, match="scene: unknown key 'colour' ignored"):
+        got = sim.from_json(one + ', "colour": 1}')
+    assert got == sim.from_json(one + "}")
+
+
+def test_scene_file_with_unknown_keys_renders_and_warns_once_per_key(tmp_path, capsys):
+    """A key the scene format does not define is ignored with one ``warning:`` line
+    naming the file, the object, the key and a close known key when there is one; the
+    scene then loads as if the key were absent."""
+    from jtus import cli
+    from jtus.sim import __main__ as sim_cli
+    tree = json.loads(sim.to_json(sim.get_scene("plaza_day")))
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps({**tree, "extra": 1, "objects": [
+        {**tree["objects"][0], "materal": {}}] + tree["objects"][1:]}))
+    with pytest.warns(UnknownKeyWarning) as got:
+        scene = sim.from_json(path)
+    assert scene == sim.get_scene("plaza_day")
+    msgs = sorted(str(w.message) for w in got)
+    assert len(msgs) == 2
+    assert msgs[0].startswith(f"{path}: scene.objects[0]: unknown key 'materal' ignored "
+                              "(did you mean 'material'?)")
+    assert msgs[1].startswith(f"{path}: scene: unknown key 'extra' ignored;")
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as e:
+        cli.run(lambda: sim_cli.main(["show", "--scene", str(path)]))
+    assert e.value.code == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and all(line.startswith(f"warning: {path}: scene") for line in err)
 
 
 def test_suite_covers_every_effect_alone():

@@ -140,7 +140,7 @@ class ImportSpec:
 
     @classmethod
     def from_json(cls, path):
-        data = read_json_fields(path, cls, "keys")
+        data = read_json_fields(path, cls, "key")
         data = {k: tuple(v) if isinstance(v, list) and k in ("color", "motion", "target_color")
                 else v for k, v in data.items()}
         try:

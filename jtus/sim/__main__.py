@@ -77,8 +77,6 @@ def resolve(spec, effects=None):
             scene = from_json(spec)
         except json.JSONDecodeError as e:
             raise ValueError(f"scene: {spec} is not valid JSON ({e})") from e
-        except ValueError as e:
-            raise ValueError(f"scene: {spec}: {e}") from e
     else:
         scene = get_scene(str(spec))
     return dataclasses.replace(scene, effects=tuple(effects)) if effects is not None else scene

@@ -16,6 +16,7 @@ import json
 import math
 
 from jtus.data.conventions import FAR, NEAR
+from jtus.files import drop_unknown_keys
 
 # every effect of the display-referred (LDR) simulator; "everything" has all of them
 LDR_EFFECTS = ("camera_motion", "object_motion", "thin_geometry", "texture_detail", "shadows",
@@ -155,9 +156,7 @@ def _build(cls, data, where):
     if not isinstance(data, dict):
         raise ValueError(f"{where}: expected an object, got {type(data).__name__}")
     fields = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - set(fields))
-    if unknown:
-        raise ValueError(f"{where}: unknown keys {unknown}; expected some of {sorted(fields)}")
+    data = drop_unknown_keys(where, data, fields)
     kw = {}
     for k, v in data.items():
         if k not in ("material", "light", "path", "objects", "extra_lights"):
@@ -178,7 +177,10 @@ def _build(cls, data, where):
         elif isinstance(v, list):
             v = tuple(tuple(x) if isinstance(x, list) else x for x in v)
         kw[k] = v
-    return cls(**kw)
+    try:
+        return cls(**kw)
+    except ValueError as e:  # a check across fields (``__post_init__``), named from here
+        raise ValueError(f"{where}: {e}") from e
 
 
 def _is_number(v):
@@ -218,17 +220,22 @@ def _check_value(where, v, default):
         raise ValueError(f"{where}: expected {what}, got {v!r}")
 
 
-def from_dict(data) -> Scene:
-    return _build(Scene, data, "scene")
+def from_dict(data, where="scene") -> Scene:
+    """The ``Scene`` of a JSON-like dict; ``ValueError`` naming the field (``where``
+    starts its path) for a wrong type, a non-finite or out-of-range value; keys that are
+    not fields are dropped with an ``UnknownKeyWarning`` naming them."""
+    return _build(Scene, data, where)
 
 
 def from_json(text_or_path) -> Scene:
-    """A scene from JSON text or a path to a ``.json`` file."""
-    text = str(text_or_path)
+    """A scene from JSON text or a path to a ``.json`` file (messages then start with
+    the path)."""
+    text, where = str(text_or_path), "scene"
     if not text.lstrip().startswith("{"):
+        where = f"{text}: scene"
         with open(text) as fh:
             text = fh.read()
-    return from_dict(json.loads(text))
+    return from_dict(json.loads(text), where)
 
 
 def to_json(scene: Scene) -> str:
