@@ -19,6 +19,7 @@ multi-host state; it would add a dependency and a layout nobody here needs.
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 
@@ -81,6 +82,14 @@ def read_history(path, epochs):
         raise ValueError(f"{path}: expected a list of {epochs} epoch records (epoch 1 ... "
                          f"{epochs}) matching the checkpoint; restore it or start again "
                          "with --overwrite")
+    for r in history:  # what training writes: finite numbers, whole step counts
+        for k, v in r.items():
+            whole = k in ("epoch", "step")
+            if (isinstance(v, bool) or not isinstance(v, int if whole else (int, float))
+                    or not math.isfinite(v) or (whole and v < 0)):
+                raise ValueError(f"{path}: epoch {r['epoch']}: {k}: expected "
+                                 f"{'a whole number >= 0' if whole else 'a finite number'}, "
+                                 f"got {v!r}; restore it or start again with --overwrite")
     return history
 
 

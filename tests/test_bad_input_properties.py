@@ -17,6 +17,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from jtus import checkpoint
 from jtus import config as run_config
 from jtus.data import __main__ as data_cli
 from jtus.data import exr
@@ -342,3 +343,31 @@ def test_nss_metadata_imports_or_names_the_field(tmp_path_factory, nss_root, pic
     assert rc == 2 and not out.exists()
     msg = err.getvalue().strip()
     assert msg.startswith("error: ") and "\n" not in msg and "0000.json" in msg, msg
+
+
+# ---------------------------------------------------------------- run history
+
+_RECORD = {"epoch": 1, "step": 400, "train_loss": 0.0105, "grad_norm": 0.011,
+           "grad_norm_max": 0.047, "param_norm": 24.2, "val_loss": 0.0041, "val_psnr": 39.7,
+           "val_ssim": 0.976, "seconds": 246.2}
+
+
+@_examples(100)
+@given(key=st.sampled_from(sorted(_RECORD)), value=_BAD, which=st.integers(0, 1))
+def test_run_history_is_records_or_a_named_error(tmp_path_factory, key, value, which):
+    """One field of one record of a run's ``metrics.json`` set to a wrong type, null,
+    NaN, Inf, a negative or a list: ``--resume`` reads it as it was written or refuses
+    it naming the file, the epoch and the field."""
+    history = [dict(_RECORD), {**_RECORD, "epoch": 2, "step": 800}]
+    history[which][key] = value
+    path = tmp_path_factory.mktemp("m") / "metrics.json"
+    path.write_text(json.dumps(history))
+    try:
+        got = checkpoint.read_history(str(path), 2)
+    except ValueError as e:
+        assert str(path) in str(e) and (f"{key}:" in str(e) or key == "epoch"), str(e)
+        return
+    assert got == history
+    assert all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+               for r in got for v in r.values())
+    assert all(isinstance(r["step"], int) and r["step"] >= 0 for r in got)
