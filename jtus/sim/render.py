@@ -27,6 +27,7 @@ from jtus.sim.scene import TEXTURES, Scene
 
 _EPS = 1e-4
 _INF = jnp.inf
+BUNDLE = 1024
 
 
 def state_arrays(state: FrameState):
@@ -137,22 +138,101 @@ class _Static:
                              np.float32).reshape(-1, 3)
         self.spec = np.array([x.specular for x in m], np.float32)
         self.shine = np.array([x.shininess for x in m], np.float32)
+        # each object's bounding sphere about its position (for culling; a plane
+        # without a size is the 1e6 one above)
+        self.radius = np.array([np.linalg.norm(size[i].astype(np.float64)[
+            {"plane": [0, 2], "box": [0, 1, 2], "sphere": [0], "rod": [0, 1]}[o.kind]])
+            for i, o in enumerate(objs)], np.float32).reshape(-1)
 
 
-def _intersect(st: _Static, o, d, pos, yaw, any_hit_before=None):
+def _intersect(st: _Static, o, d, pos, yaw, any_hit_before=None, keep=None):
     """Nearest hit: ``(t [N], object [N])`` (t = inf where nothing is hit); or, with
-    ``any_hit_before [N]``, a bool [N]: something is hit closer than that."""
-    ts = []
+    ``any_hit_before [N]``, a bool [N]: something is hit closer than that.
+
+    ``keep [objects]`` (bool), when given, names the objects that may be hit (the
+    others are proven missed by every ray, ``cone_keep`` / ``capsule_keep``): the
+    objects are then tested one at a time in a loop, each under ``lax.cond``, and the
+    culled ones cost nothing. The values are those of the test of every object."""
+    if keep is None:
+        ts = []
+        for k in st.kinds:
+            a, b = st.groups[k]
+            po, yo = pos[a:b], yaw[a:b]
+            oo = _to_object(o[:, None, :] - po[None], yo[None])
+            do = _to_object(jnp.broadcast_to(d[:, None, :], oo.shape), yo[None])
+            ts.append(_T_FNS[k](oo, do, jnp.asarray(st.size[a:b])[None]))
+        t_all = jnp.concatenate(ts, -1)
+        if any_hit_before is not None:
+            return jnp.any(t_all < any_hit_before[:, None], -1)
+        return jnp.min(t_all, -1), jnp.argmin(t_all, -1).astype(jnp.int32)
+    size = jnp.asarray(st.size)
+    n = o.shape[0]
+    if any_hit_before is None:
+        carry = (jnp.full((n,), _INF, o.dtype), jnp.zeros((n,), jnp.int32))
+    else:
+        carry = jnp.zeros((n,), bool)
     for k in st.kinds:
+        fn = _T_FNS[k]
+
+        def test(j, carry, fn=fn):
+            t = fn(_to_object(o - pos[j], yaw[j]), _to_object(d, yaw[j]), size[j])
+            if any_hit_before is not None:
+                return carry | (t < any_hit_before)
+            best, idx = carry
+            closer = t < best  # strict: ties keep the first object, as argmin does
+            return jnp.where(closer, t, best), jnp.where(closer, j, idx)
+
+        def body(j, carry, test=test):
+            return jax.lax.cond(keep[j], test, lambda j, c: c, j, carry)
+
         a, b = st.groups[k]
-        po, yo = pos[a:b], yaw[a:b]
-        oo = _to_object(o[:, None, :] - po[None], yo[None])
-        do = _to_object(jnp.broadcast_to(d[:, None, :], oo.shape), yo[None])
-        ts.append(_T_FNS[k](oo, do, jnp.asarray(st.size[a:b])[None]))
-    t_all = jnp.concatenate(ts, -1)
-    if any_hit_before is not None:
-        return jnp.any(t_all < any_hit_before[:, None], -1)
-    return jnp.min(t_all, -1), jnp.argmin(t_all, -1)
+        carry = jax.lax.fori_loop(a, b, body, carry)
+    return carry
+
+
+def cone_keep(radius, pos, eye, d):
+    """Which spheres (centres ``pos [K,3]``, ``radius [K]``) the rays from ``eye``
+    along ``d [N,3]`` may meet: bool ``[K]``. The rays lie in the cone about their mean
+    direction whose half-angle is their widest; a sphere is dropped only when its
+    distance from the line of the cone's surface (at most its distance from the cone)
+    exceeds its radius, with margins for float32 rounding. Rays wider than a
+    half-space keep everything."""
+    dn = d / jnp.linalg.norm(d, axis=-1, keepdims=True)
+    axis = dn.mean(0)
+    axis = axis / jnp.maximum(jnp.linalg.norm(axis), 1e-12)
+    cos = jnp.min(dn @ axis) - 1e-5
+    sin = jnp.sqrt(jnp.maximum(1.0 - cos * cos, 0.0))
+    v = pos - eye
+    along = v @ axis
+    dist2 = (v * v).sum(-1)
+    perp = jnp.sqrt(jnp.maximum(dist2 - along * along, 0.0))
+    gap = cos * perp - sin * along
+    margin = 1e-3 + 1e-4 * jnp.sqrt(dist2)
+    return (gap <= radius + margin) | (cos <= 0.0)
+
+
+def capsule_keep(radius, pos, x, hit, to, directional):
+    """Which spheres (centres ``pos [K,3]``, ``radius [K]``) may block a shadow ray:
+    bool ``[K]``. The rays start at ``x [N,3]`` where ``hit`` and run to the point
+    ``to`` or, when ``directional``, along the unit direction ``to`` for ever; each lies
+    within the bounding ball of the origins swept along that segment or half-line (a
+    capsule), and a sphere is dropped only when it misses the capsule. Nothing is kept
+    when no ray has an origin."""
+    w = hit.astype(x.dtype)[:, None]
+    count = jnp.maximum(w.sum(), 1.0)
+    c = (x * w).sum(0) / count
+    r = jnp.sqrt(jnp.max(((x - c) ** 2).sum(-1) * w[:, 0]))
+    if directional:
+        u, length = to, _INF
+    else:
+        seg = to - c
+        length = jnp.linalg.norm(seg)
+        u = seg / jnp.maximum(length, 1e-12)
+    v = pos - c
+    s = jnp.clip(v @ u, 0.0, length)
+    dist = jnp.linalg.norm(v - s[:, None] * u, axis=-1)
+    margin = 1e-3 + 1e-4 * jnp.linalg.norm(v, axis=-1)
+    return (dist <= r + radius + margin) & jnp.any(hit)
 
 
 def _normal_uv(st: _Static, p_obj, obj):
@@ -182,32 +262,44 @@ def _project(cam, x, direction=False):
     return jnp.stack([(sx + 1) / 2, (1 - sy) / 2], -1)
 
 
-def _albedo(st, tex_kinds, obj, u, v, n, dn, dist, pixel_angle):
+def _albedo(st, tex_kinds, obj, hit, u, v, n, dn, dist, pixel_angle, skip=True):
     """Each hit's base colour: the object's colour, through its prefiltered texture
-    (``texture_detail``) with the filter width of its footprint."""
+    (``texture_detail``) with the filter width of its footprint.
+
+    With ``skip``, each texture kind is evaluated only for the points of a call when
+    one of them hits an object wearing it (``lax.cond`` on the whole call, a real
+    branch on the CPU): ``VideoRenderer`` casts the targets tile by tile, whose points
+    see one or two of a randomized scene's dozen kinds. ``skip=False`` evaluates every
+    kind the scene has for every point (the form whose FLOPs XLA counts)."""
     albedo = jnp.asarray(st.color)[obj]
     if not tex_kinds:
         return albedo
     cos = jnp.maximum(jnp.abs((n * dn).sum(-1)), 0.25)
     scale = jnp.asarray(st.tex_scale)[obj]
     width = dist * pixel_angle / cos * scale
-    tex_id = jnp.asarray(st.tex)[obj]
+    tex_id = jnp.where(hit, jnp.asarray(st.tex)[obj], -1)  # the sky wears no texture
     tu, tv = u * scale, v * scale * jnp.asarray(st.tex_aspect)[obj]
     seed = jnp.asarray(st.tex_seed)[obj]
     value = jnp.ones_like(u)
     for name in tex_kinds:
         if name in textures.TEXTURE_FNS:
-            tval = textures.TEXTURE_FNS[name](tu, tv, width)
+            fn = textures.TEXTURE_FNS[name]
+            args = (tu, tv, width)
         else:
-            tval = textures.SEEDED_FNS[name](tu, tv, width, seed)
-        value = jnp.where(tex_id == TEXTURES.index(name), tval, value)
+            fn = textures.SEEDED_FNS[name]
+            args = (tu, tv, width, seed)
+        worn = tex_id == TEXTURES.index(name)
+        tval = (jax.lax.cond(jnp.any(worn), fn, lambda *a: jnp.ones_like(a[0]), *args)
+                if skip else fn(*args))
+        value = jnp.where(worn, tval, value)
     dark = jnp.asarray(st.dark)[obj]
     return dark + (albedo - dark) * value[:, None]
 
 
-def _shade(scene, st, state, albedo, x, n, dn, obj, pos, yaw, gain):
+def _shade(scene, st, state, albedo, x, n, dn, obj, hit, pos, yaw, gain, keep_for):
     """Ambient, then each light's diffuse term (shadowed with ``shadows``) and its
-    highlight (``specular``), then emission (``emissive_flicker``)."""
+    highlight (``specular``), then emission (``emissive_flicker``). ``keep_for(test,
+    *args)``: the objects a shadow ray may hit (``_parts``)."""
     lights = (scene.light,) + tuple(scene.extra_lights)
     color = albedo * lights[0].ambient
     for i, light in enumerate(lights):
@@ -225,7 +317,11 @@ def _shade(scene, st, state, albedo, x, n, dn, obj, pos, yaw, gain):
         diffuse = jnp.maximum((n * ldir).sum(-1, keepdims=True), 0.0)
         vis = 1.0
         if scene.has("shadows"):
-            occluded = _intersect(st, x + 1e-3 * n, ldir, pos, yaw, any_hit_before=ldist)
+            origin = x + 1e-3 * n
+            keep = keep_for(capsule_keep, pos, origin, hit,
+                            ldir[0] if light.kind == "directional" else lv,
+                            light.kind == "directional")
+            occluded = _intersect(st, origin, ldir, pos, yaw, any_hit_before=ldist, keep=keep)
             vis = jnp.where(occluded, 0.0, 1.0)[:, None]
         color = color + albedo * lcol * diffuse * vis
         if scene.has("specular"):
@@ -264,12 +360,33 @@ def _primary(state, xy):
     return jnp.broadcast_to(cam["eye"], d.shape), d
 
 
-def _parts(scene: Scene):
+INTERSECT = ("culled", "every", "unrolled")
+
+
+def _parts(scene: Scene, intersect="culled"):
     """The renderer in two pieces: ``shade(state, xy, pixel_angle) -> (color, t, obj)``,
     the costly one (intersection, texture, lighting), and ``geometry(state, xy, t,
     obj, motion) -> dict`` of ``depth`` and ``motion`` from the hits it found (a few
-    dozen FLOPs a point)."""
+    dozen FLOPs a point).
+
+    ``intersect``: ``"culled"`` tests each object against a call's rays under a
+    ``lax.cond``, skipping those whose bounding sphere no ray of the call can reach
+    (``cone_keep`` for the camera rays, ``capsule_keep`` for each light's shadow
+    rays); ``"every"`` runs the same loop with every object kept (the same values, bit
+    for bit: the culling's reference); ``"unrolled"`` tests every object in one
+    expression, the form whose FLOPs XLA counts (it counts a loop's body once) and
+    that rounds a few grazing rays differently from the loop."""
+    if intersect not in INTERSECT:
+        raise ValueError(f"intersect: expected one of {INTERSECT}, got {intersect!r}")
     st = _Static(scene)
+
+    def keep_for(test, pos, *args):
+        if intersect == "unrolled":
+            return None
+        if intersect == "every":
+            return jnp.ones(pos.shape[:1], bool)
+        return test(jnp.asarray(st.radius), pos, *args)
+
     tex_kinds = (sorted({TEXTURES[t] for t in st.tex if t != 0})
                  if scene.has("texture_detail") else [])
     near, far = scene.near, scene.far
@@ -291,15 +408,17 @@ def _parts(scene: Scene):
     def shade(state, xy, pixel_angle):
         pos, yaw = poses(state)
         o, d = _primary(state, xy)
-        t, obj = _intersect(st, o, d, pos, yaw)
+        t, obj = _intersect(st, o, d, pos, yaw,
+                            keep=keep_for(cone_keep, pos, state["camera"]["eye"], d))
         hit, t_safe, x, p_obj = hit_point(pos, yaw, o, d, t, obj)
         n_obj, u, v = _normal_uv(st, p_obj, obj)
         n = _to_world(n_obj, yaw[obj])
         dn = d / jnp.linalg.norm(d, axis=-1, keepdims=True)
         n = jnp.where((n * dn).sum(-1, keepdims=True) > 0, -n, n)
-        albedo = _albedo(st, tex_kinds, obj, u, v, n, dn,
-                         t_safe * jnp.linalg.norm(d, axis=-1), pixel_angle)
-        color = _shade(scene, st, state, albedo, x, n, dn, obj, pos, yaw, gain)
+        albedo = _albedo(st, tex_kinds, obj, hit, u, v, n, dn,
+                         t_safe * jnp.linalg.norm(d, axis=-1), pixel_angle,
+                         skip=intersect != "unrolled")
+        color = _shade(scene, st, state, albedo, x, n, dn, obj, hit, pos, yaw, gain, keep_for)
         sky = horizon + (zenith - horizon) * jnp.clip(dn[:, 1:2], 0.0, 1.0)
         color = jnp.where(hit[:, None], color, sky)
         # LDR scenes clamp to display range; hdr keeps linear radiance (>= 0)
@@ -319,7 +438,7 @@ def _parts(scene: Scene):
     return shade, geometry
 
 
-def make_renderer(scene: Scene, motion: bool = True):
+def make_renderer(scene: Scene, motion: bool = True, intersect: str = "culled"):
     """The jitted ``render(state, xy [N,2], pixel_angle) -> dict`` for this scene.
 
     ``pixel_angle`` is the texture filter's footprint in radians per sample (the
@@ -328,7 +447,7 @@ def make_renderer(scene: Scene, motion: bool = True):
     ``depth [N,1]`` and, with ``motion``, ``motion [N,2]`` (normalized units). Only
     the effects the scene declares are traced.
     """
-    shade, geometry = _parts(scene)
+    shade, geometry = _parts(scene, intersect)
 
     def render(state, xy, pixel_angle):
         color, t, obj = shade(state, xy, pixel_angle)
@@ -337,7 +456,7 @@ def make_renderer(scene: Scene, motion: bool = True):
     return jax.jit(render)
 
 
-def make_split_renderer(scene: Scene):
+def make_split_renderer(scene: Scene, intersect: str = "culled"):
     """``make_renderer``'s work as two jitted functions, for callers that need depth
     and motion for only some of their points (``jtus.sim.video``: the inputs, not the
     supersampled targets): ``shade(state, xy, pixel_angle) -> (color, t, obj)`` and
@@ -346,8 +465,19 @@ def make_split_renderer(scene: Scene):
     0.85-0.94x the whole's FLOPs per point on the hand-made scenes measured, 0.98-0.99x
     on randomized ones, and the two compile in about the whole's time
     (``experiments/renderer_split.py``)."""
-    shade, geometry = _parts(scene)
-    return jax.jit(shade), jax.jit(geometry)
+    shade, geometry = _parts(scene, intersect)
+    if intersect == "unrolled":
+        return jax.jit(shade), jax.jit(geometry)
+
+    def bundled(state, xy, pixel_angle):
+        n = xy.shape[0]
+        if n % BUNDLE:
+            return shade(state, xy, pixel_angle)
+        color, t, obj = jax.lax.map(lambda p: shade(state, p, pixel_angle),
+                                    xy.reshape(n // BUNDLE, BUNDLE, 2))
+        return color.reshape(n, -1), t.reshape(n), obj.reshape(n)
+
+    return jax.jit(bundled), jax.jit(geometry)
 
 
 def pixel_angle(camera_tan_half_y, height_hr, spp_match=1):
@@ -362,7 +492,7 @@ def flops_per_point(scene: Scene, points=256):
     divided by their number. Unlike a wall time it does not move with the machine's
     load, so it shows that an undeclared effect costs nothing."""
     state = state_arrays(timeline(scene, "train", 0, 1, 1.0)[0])
-    cost = compiled_cost(make_renderer(scene, motion=True), state,
+    cost = compiled_cost(make_renderer(scene, motion=True, intersect="unrolled"), state,
                          jnp.zeros((points, 2), jnp.float32), 0.01)
     return float(cost["flops"]) / points
 

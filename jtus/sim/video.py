@@ -37,9 +37,12 @@ CHUNK = 16384
 class VideoRenderer:
     """Renders the frames of a scene; compiles the scene's renderer once. A
     ``MeshScene`` is cast by ``jtus.sim.mesh.MeshRenderer`` along ``jtus.sim.walk``'s
-    camera paths; everything else (jitter, targets, holds) is the same."""
+    camera paths; everything else (jitter, targets, holds) is the same. ``intersect``:
+    how the analytic renderer meets objects (``jtus.sim.render.make_split_renderer``;
+    ``"culled"``, the default, skips objects no ray of a tile can reach)."""
 
-    def __init__(self, scene: Scene, size, factors=(2, 4), spp=16, spp_match=1):
+    def __init__(self, scene: Scene, size, factors=(2, 4), spp=16, spp_match=1,
+                 intersect="culled"):
         self.scene = scene
         self.H, self.W = size
         for f in factors:
@@ -58,7 +61,7 @@ class VideoRenderer:
             self._mesh = None
             # colour for every point, depth and motion only where asked (the inputs):
             # the supersampled targets need colour alone
-            self._shade, self._geometry = render.make_split_renderer(scene)
+            self._shade, self._geometry = render.make_split_renderer(scene, intersect)
 
     def timeline(self, split, index, length):
         """The per-frame states of one video."""
@@ -109,12 +112,25 @@ class VideoRenderer:
     def _box(self, state, pixels, offsets):
         """Box-filtered colour ``[len(pixels),3]`` (float64) of flat pixel indices, one
         sample at each of ``offsets [S,2]`` inside each pixel; and the samples
-        ``[S,len(pixels),3]``."""
-        jy, jx = np.divmod(pixels.astype(np.float32), np.float32(self.W))
-        xy = np.concatenate([np.stack([(jx + ox) / self.W, (jy + oy) / self.H], -1)
-                             for ox, oy in offsets])
-        col = self._cast(state, xy, color_only=True)["color"].reshape(len(offsets),
-                                                                      len(pixels), 3)
+        ``[S,len(pixels),3]``.
+
+        The samples are cast tile by tile: each call of the renderer takes every
+        sample of a square block of pixels (``chunk / S`` of them), so that its points
+        see few objects and few texture kinds, which the renderer then skips."""
+        S, n = len(offsets), len(pixels)
+        per_call = max(1, min(self.chunk, render.BUNDLE) // S)
+        side = 1 << max(0, int(np.log2(per_call)) // 2)  # a power-of-two square tile
+        py, px = np.divmod(pixels, self.W)
+        order = np.lexsort((px, py, px // side, py // side))  # tile rows, then within
+        blocks = [order[i:i + per_call] for i in range(0, n, per_call)]
+        xy = np.concatenate([np.stack([(px[b] + ox) / self.W, (py[b] + oy) / self.H], -1)
+                             for b in blocks for ox, oy in offsets]).astype(np.float32)
+        flat = self._cast(state, xy, color_only=True)["color"]
+        col = np.empty((S, n, 3), np.float32)
+        start = 0
+        for b in blocks:
+            col[:, b] = flat[start:start + S * len(b)].reshape(S, len(b), 3)
+            start += S * len(b)
         return col.mean(0, dtype=np.float64), col
 
     def target(self, state: paths.FrameState):
