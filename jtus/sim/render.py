@@ -8,7 +8,10 @@ by ``scene.effects`` at build time: no shadow rays without ``shadows``, no textu
 filter without ``texture_detail``, no specular lobe without ``specular``, no per-object
 previous poses without ``object_motion``, and so on. ``make_split_renderer(scene)``
 gives the same work as two functions, colour and the hits first, depth and motion from
-those hits second, so that the supersampled targets skip the second.
+those hits second, so that the supersampled targets skip the second, and casts its
+colour in bundles of ``BUNDLE`` rays: per bundle, objects whose bounding sphere no ray
+can reach (``cone_keep``, ``capsule_keep``) and texture kinds no ray wears are skipped,
+which changes no value (the ``intersect`` argument; docs/simulator.md, "Speed").
 
 Camera: a pinhole looking along ``forward``; the ray through ``xy`` is
 ``forward + (2x-1) tan_x right + (1-2y) tan_y up``, so the ray parameter of a hit is
@@ -464,7 +467,9 @@ def make_split_renderer(scene: Scene, intersect: str = "culled"):
     ``make_renderer``'s (to 1e-6, ``tests/test_sim.py``). The colour alone counts
     0.85-0.94x the whole's FLOPs per point on the hand-made scenes measured, 0.98-0.99x
     on randomized ones, and the two compile in about the whole's time
-    (``experiments/renderer_split.py``)."""
+    (``experiments/renderer_split.py``). ``shade`` takes its points ``BUNDLE`` at a
+    time (``lax.map``) when their number is a multiple of it, so that culling works on
+    bundles of nearby rays (``VideoRenderer`` orders the targets' rays so)."""
     shade, geometry = _parts(scene, intersect)
     if intersect == "unrolled":
         return jax.jit(shade), jax.jit(geometry)
