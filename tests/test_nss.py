@@ -168,6 +168,27 @@ def test_import_nss_follows_arms_reader_on_planes_order_and_truth(tmp_path, caps
     assert "motion_gt" in capsys.readouterr().err and not (tmp_path / "b.h5").exists()
 
 
+def test_import_nss_warns_once_per_key_outside_arms_specification(tmp_path):
+    """A sequence key and a frame key that neither Arm's specification nor its reader
+    defines each give one ``UnknownKeyWarning`` naming the JSON file and the key; the
+    import is the one without them. The specification's optional keys warn nothing."""
+    from jtus.files import UnknownKeyWarning
+
+    def edit(m):
+        m.update(Notes="x", MotionVectorsDilated=False)
+        for fr in m["Frames"]:
+            fr["Tag"] = 1
+    with pytest.warns(UnknownKeyWarning) as got:
+        _, frames, targets = _import_fixture(tmp_path, 2, edit)
+    msgs = sorted({str(w.message) for w in got})
+    assert len(msgs) == 2, msgs
+    assert "0000.json.Frames[0]: unknown key 'Tag' ignored" in msgs[0]
+    assert "0000.json: unknown key 'Notes' ignored" in msgs[1]
+    _, plain_frames, plain_targets = _import_fixture(tmp_path / "plain", 2)
+    np.testing.assert_array_equal(targets, plain_targets)
+    np.testing.assert_array_equal(frames.color, plain_frames.color)
+
+
 @pytest.mark.parametrize("break_it,message", [
     (lambda root: os.remove(os.path.join(root, f"x{F}", "depth", "0001", "0012.exr")),
      r"x2/depth/0001 holds 3 \.exr files, .* 4"),

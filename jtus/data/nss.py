@@ -26,6 +26,7 @@ from __future__ import annotations
 import json
 import os
 import pathlib
+import warnings
 
 import h5py
 import numpy as np
@@ -33,7 +34,7 @@ from tqdm import tqdm
 
 from jtus.data import conventions, dataset
 from jtus.data.exr import check_values, read_exr
-from jtus.files import atomic_path
+from jtus.files import UnknownKeyWarning, atomic_path
 
 INFINITE_FAR = 5000.0  # what an infinite far plane (CameraFarPlane -1) becomes, as in Arm's reader
 TRUTHS = ("karis", "linear")  # how the ground truth EXRs are stored
@@ -101,6 +102,34 @@ def _files(root, name, factor):
     return out
 
 
+# Arm's specification (docs/nss/nss_dataset_specification.md, "Metadata") and the keys
+# Arm's reader also takes (NearPlane / FarPlane, QuantisedPerRatioJitter, CameraCut)
+SEQUENCE_KEYS = ("Version", "EmulatedFramerate", "TargetResolution", "Samples", "Frames",
+                 "ReverseZ", "OpaqueOnlyColor_Exported", "UnjitteredSrcColor_Exported",
+                 "UpscalingRatiosIndices", "MotionVectorsDilated", "NearPlane", "FarPlane")
+FRAME_KEYS = ("Frame", "FovX", "FovY", "CameraNearPlane", "CameraFarPlane", "ViewProjection",
+              "Jitter", "NormalizedPerRatioJitter", "QuantisedPerRatioJitter", "Exposure",
+              "CameraCut")
+
+
+def _warn_unknown(where, meta, frames):
+    """One ``UnknownKeyWarning`` per key that neither Arm's specification nor its reader
+    defines: in the sequence object, and in the frames (once per key, naming the first
+    frame that has it). Such keys are not read."""
+    for k in meta:
+        if k not in SEQUENCE_KEYS:
+            warnings.warn(f"{where}: unknown key {k!r} ignored; Arm's NSS sequence keys are "
+                          f"{list(SEQUENCE_KEYS)}", UnknownKeyWarning, stacklevel=3)
+    seen = set()
+    for t, fr in enumerate(frames):
+        for k in (fr if isinstance(fr, dict) else ()):
+            if k not in FRAME_KEYS and k not in seen:
+                seen.add(k)
+                warnings.warn(f"{where}.Frames[{t}]: unknown key {k!r} ignored (and in any "
+                              f"later frame); Arm's NSS frame keys are {list(FRAME_KEYS)}",
+                              UnknownKeyWarning, stacklevel=3)
+
+
 def _read_meta(root, name, factor):
     """``(where, frames, reverse_z, (H, W), jitter index)`` of one sequence's JSON,
     checked."""
@@ -117,6 +146,7 @@ def _read_meta(root, name, factor):
     frames = _need(meta, "Frames", where, list)
     if not frames:
         raise ValueError(f"{where}: Frames is empty")
+    _warn_unknown(where, meta, frames)
     reverse_z = meta.get("ReverseZ", False)  # Arm's reader: metadata.get("ReverseZ", False)
     if not isinstance(reverse_z, bool):
         raise ValueError(f"{where}.ReverseZ: expected true or false, got {reverse_z!r}")
