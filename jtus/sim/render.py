@@ -366,22 +366,17 @@ def _primary(state, xy):
 INTERSECT = ("culled", "every", "unrolled")
 
 
-def _parts(scene: Scene, intersect="culled"):
-    """The renderer in two pieces: ``shade(state, xy, pixel_angle) -> (color, t, obj)``,
-    the costly one (intersection, texture, lighting), and ``geometry(state, xy, t,
-    obj, motion) -> dict`` of ``depth`` and ``motion`` from the hits it found (a few
-    dozen FLOPs a point).
-
-    ``intersect``: ``"culled"`` tests each object against a call's rays under a
-    ``lax.cond``, skipping those whose bounding sphere no ray of the call can reach
-    (``cone_keep`` for the camera rays, ``capsule_keep`` for each light's shadow
-    rays); ``"every"`` runs the same loop with every object kept (the same values, bit
-    for bit: the culling's reference); ``"unrolled"`` tests every object in one
-    expression, the form whose FLOPs XLA counts (it counts a loop's body once) and
-    that rounds a few grazing rays differently from the loop."""
+def _keep_rule(st: _Static, intersect):
+    """``keep_for(test, pos, *args)``: the objects ``_intersect`` tests for some rays.
+    ``intersect``: ``"culled"`` keeps those whose bounding sphere a ray can reach
+    (``test`` is ``cone_keep`` for the camera rays, ``capsule_keep`` for each light's
+    shadow rays), each then tested under a ``lax.cond``; ``"every"`` runs the same
+    loop with every object kept (the same values, bit for bit: the culling's
+    reference); ``"unrolled"`` tests every object in one expression, the form whose
+    FLOPs XLA counts (it counts a loop's body once), which rounds a few grazing rays
+    differently from the loop."""
     if intersect not in INTERSECT:
         raise ValueError(f"intersect: expected one of {INTERSECT}, got {intersect!r}")
-    st = _Static(scene)
 
     def keep_for(test, pos, *args):
         if intersect == "unrolled":
@@ -390,6 +385,16 @@ def _parts(scene: Scene, intersect="culled"):
             return jnp.ones(pos.shape[:1], bool)
         return test(jnp.asarray(st.radius), pos, *args)
 
+    return keep_for
+
+
+def _parts(scene: Scene, intersect="culled"):
+    """The renderer in two pieces: ``shade(state, xy, pixel_angle) -> (color, t, obj)``,
+    the costly one (intersection, texture, lighting), and ``geometry(state, xy, t,
+    obj, motion) -> dict`` of ``depth`` and ``motion`` from the hits it found (a few
+    dozen FLOPs a point). ``intersect``: how rays meet objects (``_keep_rule``)."""
+    st = _Static(scene)
+    keep_for = _keep_rule(st, intersect)
     tex_kinds = (sorted({TEXTURES[t] for t in st.tex if t != 0})
                  if scene.has("texture_detail") else [])
     near, far = scene.near, scene.far
