@@ -26,7 +26,6 @@ from __future__ import annotations
 import json
 import os
 import pathlib
-import warnings
 
 import h5py
 import numpy as np
@@ -34,7 +33,7 @@ from tqdm import tqdm
 
 from jtus.data import conventions, dataset
 from jtus.data.exr import check_values, read_exr
-from jtus.files import UnknownKeyWarning, atomic_path
+from jtus.files import atomic_path, drop_unknown_keys
 
 INFINITE_FAR = 5000.0  # what an infinite far plane (CameraFarPlane -1) becomes, as in Arm's reader
 TRUTHS = ("karis", "linear")  # how the ground truth EXRs are stored
@@ -116,18 +115,13 @@ def _warn_unknown(where, meta, frames):
     """One ``UnknownKeyWarning`` per key that neither Arm's specification nor its reader
     defines: in the sequence object, and in the frames (once per key, naming the first
     frame that has it). Such keys are not read."""
-    for k in meta:
-        if k not in SEQUENCE_KEYS:
-            warnings.warn(f"{where}: unknown key {k!r} ignored; Arm's NSS sequence keys are "
-                          f"{list(SEQUENCE_KEYS)}", UnknownKeyWarning, stacklevel=3)
-    seen = set()
+    drop_unknown_keys(where, meta, SEQUENCE_KEYS)
+    seen = set(FRAME_KEYS)
     for t, fr in enumerate(frames):
-        for k in (fr if isinstance(fr, dict) else ()):
-            if k not in FRAME_KEYS and k not in seen:
-                seen.add(k)
-                warnings.warn(f"{where}.Frames[{t}]: unknown key {k!r} ignored (and in any "
-                              f"later frame); Arm's NSS frame keys are {list(FRAME_KEYS)}",
-                              UnknownKeyWarning, stacklevel=3)
+        new = [k for k in (fr if isinstance(fr, dict) else ()) if k not in seen]
+        if new:
+            drop_unknown_keys(f"{where}.Frames[{t}]", dict.fromkeys(new), FRAME_KEYS)
+            seen.update(new)
 
 
 def _read_meta(root, name, factor):
