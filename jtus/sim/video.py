@@ -114,9 +114,10 @@ class VideoRenderer:
         sample at each of ``offsets [S,2]`` inside each pixel; and the samples
         ``[S,len(pixels),3]``.
 
-        The samples are cast tile by tile: each call of the renderer takes every
-        sample of a square block of pixels (``chunk / S`` of them), so that its points
-        see few objects and few texture kinds, which the renderer then skips."""
+        The samples are cast tile by tile: each bundle of the renderer
+        (``render.BUNDLE`` rays) takes every sample of a square block of pixels
+        (``BUNDLE / S`` of them), so that its rays see few objects and few texture
+        kinds, which the renderer then skips."""
         S, n = len(offsets), len(pixels)
         per_call = max(1, min(self.chunk, render.BUNDLE) // S)
         side = 1 << max(0, int(np.log2(per_call)) // 2)  # a power-of-two square tile
