@@ -123,15 +123,18 @@ class VideoRenderer:
         side = 1 << max(0, int(np.log2(per_call)) // 2)  # a power-of-two square tile
         py, px = np.divmod(pixels, self.W)
         order = np.lexsort((px, py, px // side, py // side))  # tile rows, then within
-        blocks = [order[i:i + per_call] for i in range(0, n, per_call)]
-        xy = np.concatenate([np.stack([(px[b] + ox) / self.W, (py[b] + oy) / self.H], -1)
-                             for b in blocks for ox, oy in offsets]).astype(np.float32)
-        flat = self._cast(state, xy, color_only=True)["color"]
+        # rays in (block, sample, pixel of the block) order; the last block may be short
+        slots = np.full(-(-n // per_call) * per_call, -1)
+        slots[:n] = order
+        blocks = slots.reshape(-1, 1, per_call)
+        used = np.broadcast_to(blocks >= 0, (len(blocks), S, per_call))
+        off = np.asarray(offsets, np.float64)[None, :, None]
+        xy = np.stack([(px[blocks] + off[..., 0]) / self.W, (py[blocks] + off[..., 1]) / self.H],
+                      -1)[used].astype(np.float32)
+        cast = np.zeros(used.shape + (3,), np.float32)
+        cast[used] = self._cast(state, xy, color_only=True)["color"]
         col = np.empty((S, n, 3), np.float32)
-        start = 0
-        for b in blocks:
-            col[:, b] = flat[start:start + S * len(b)].reshape(S, len(b), 3)
-            start += S * len(b)
+        col[:, order] = cast.transpose(1, 0, 2, 3).reshape(S, -1, 3)[:, :n]
         return col.mean(0, dtype=np.float64), col
 
     def target(self, state: paths.FrameState):
