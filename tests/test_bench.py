@@ -39,6 +39,28 @@ def test_bench_smoke(capsys, tmp_path):
     assert "torch_over_jtus" in tr[0] and "torch_over_jtus" not in tr[2]
 
 
+def test_interrupted_bench_keeps_the_rows_it_measured(tmp_path, monkeypatch):
+    """The report on disk grows row by row: a run stopped in its second measurement
+    (a time limit on a lent GPU, Ctrl-C) leaves the first row and its table."""
+    calls = []
+
+    def fake_infer(name, factor, size, repeats, dtype="float32", reference=True, **over):
+        if calls:
+            raise KeyboardInterrupt
+        calls.append(name)
+        return {"model": name, "size": f"{size[0]}x{size[1]}", "factor": factor,
+                "dtype": dtype, "ms": 1.5, "gflop": 1.0, "gflops": 1.0, "mbytes": 1.0}
+
+    monkeypatch.setattr(bench_cli, "bench_infer", fake_infer)
+    out = tmp_path / "bench.json"
+    with pytest.raises(KeyboardInterrupt):
+        bench_cli.main(["--what", "infer", "--models", "jau", "tus", "--sizes", "64",
+                        "--factors", "4", "--out", str(out)])
+    report = json.loads(out.read_text())
+    assert [r["model"] for r in report["infer"]] == ["jau"]
+    assert "| jau | 64x64 | 4x |" in (tmp_path / "bench.md").read_text()
+
+
 def test_dlctus_flop_count():
     """The network's FLOPs: 4x4x8 -> 32 at 1/16 of the pixels, then 8 3x3 32->32 convs."""
     c = cost.cost("dlctus", models.build("dlctus", 4).config, 1080, 1920)

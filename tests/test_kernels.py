@@ -1,6 +1,8 @@
-"""The fused Pallas trunk (``jtus.models.kernels``) in Pallas's interpret mode on the
-CPU, against the XLA path: values to 1e-5 in float32 on tiles that meet the image's
-border on every side, inside and in a DLCTUS step, and gradients (its custom VJP)."""
+"""The trunk's three forms (``jtus.models.kernels``) against each other: the Pallas
+kernels in Pallas's interpret mode on the CPU and the im2col matmuls, against the XLA
+convolutions, to 1e-5 in float32, on images that meet the tiles' border on every side,
+inside and in a DLCTUS step with gradients; and the kernels lowered for a CUDA GPU
+through Pallas's Triton back end, which this CPU can do without a GPU."""
 
 import jax
 import jax.numpy as jnp
@@ -17,17 +19,41 @@ def params():
     return dlctus.init(jax.random.PRNGKey(3))
 
 
-@pytest.mark.parametrize("size", [(8, 8), (20, 37)])
-def test_fused_trunk_equals_the_xla_trunk(params, size):
-    """(8, 8): one tile, padded to the tile; (20, 37): 2 x 3 tiles, ragged at the
-    bottom and right, so every tile position and border case is met."""
+@pytest.mark.parametrize("size, tile", [((8, 8), kernels.TILE), ((20, 37), kernels.TILE),
+                                        ((20, 37), (8, 16))])
+def test_pallas_trunk_equals_the_xla_trunk(params, size, tile):
+    """(8, 8): one tile, larger than the image; (20, 37): 2 x 2 tiles of the default
+    size and 3 x 3 of (8, 16), ragged at the bottom and right, so every tile position
+    and edge case of the clamped reads is met."""
     h = jnp.asarray(np.random.default_rng(0).normal(size=(2, *size, 32)), jnp.float32)
     args = kernels.stack_blocks(params, 4)
-    got = jax.jit(lambda *a: kernels.trunk_pallas(*a, interpret=True))(*args, h)
+    got = jax.jit(lambda *a: kernels.trunk_pallas(*a, tile=tile, interpret=True))(*args, h)
     want = kernels.trunk_xla(*args, h)
     assert got.shape == want.shape and got.dtype == jnp.float32
     # float32; measured max 9.5e-7 on values up to 4.6
     np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=0, atol=1e-5)
+
+
+def test_im2col_convolution_equals_the_xla_convolution():
+    """Edge-padded, on a non-square image with distinct channel counts in and out, so
+    that a transposed tap order or a wrong kernel reshape shows."""
+    rng = np.random.default_rng(2)
+    x = jnp.asarray(rng.normal(size=(2, 7, 9, 5)), jnp.float32)
+    k = jnp.asarray(rng.normal(size=(3, 3, 5, 6)), jnp.float32)
+    b = jnp.asarray(rng.normal(size=(6,)), jnp.float32)
+    np.testing.assert_allclose(np.asarray(kernels.conv_im2col(x, k, b)),
+                               np.asarray(layers.conv_edge(x, k, b)), rtol=0, atol=1e-5)
+
+
+def test_pallas_trunk_lowers_to_triton_kernels_for_a_cuda_gpu(params):
+    """Every operation of the kernel has a Triton lowering (power-of-two arrays, no
+    value slicing): the trunk lowers for CUDA to eight Triton calls, one per
+    convolution, in bfloat16 at 1080p 4x's size."""
+    args = [a.astype(jnp.bfloat16) for a in kernels.stack_blocks(params, 4)]
+    h = jax.ShapeDtypeStruct((1, 270, 480, 32), jnp.bfloat16)
+    fn = jax.jit(lambda x: kernels.trunk_pallas(*args, x))
+    text = fn.trace(h).lower(lowering_platforms=("cuda",)).as_text()
+    assert text.count("__gpu$xla.gpu.triton") == 8
 
 
 def test_xla_trunk_is_the_thesis_trunk(params):
@@ -43,12 +69,13 @@ def test_xla_trunk_is_the_thesis_trunk(params):
     np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=0, atol=1e-6)
 
 
-def test_dlctus_step_with_the_fused_trunk(params):
-    """Three frames of DLCTUS with ``kernels="pallas"`` equal the XLA path (outputs and
+@pytest.mark.parametrize("form", ["pallas", "im2col"])
+def test_dlctus_step_with_each_trunk_form(params, form):
+    """Three frames of DLCTUS with ``kernels=form`` equal the XLA path (outputs and
     history), and so do the parameter gradients of a loss over them."""
     frames, targets = seqdata.to_jax(seqdata.sequence(T=3, B=1, h=8, w=12, factor=4, seed=5))
     xla = dlctus.make(dlctus.Config())
-    fused = dlctus.make(dlctus.Config(kernels="pallas"))
+    fused = dlctus.make(dlctus.Config(kernels=form))
     state = xla.init_state(seqdata.first(frames))
 
     def loss(model, p):
@@ -61,6 +88,19 @@ def test_dlctus_step_with_the_fused_trunk(params):
     for a, b in zip(jax.tree_util.tree_leaves(g2), jax.tree_util.tree_leaves(g1)):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-6)
     assert abs(float(l2) - float(l1)) < 1e-6
+
+
+def test_auto_picks_the_pallas_kernels_only_where_they_measured_faster():
+    """``kernels="auto"`` (the default): the Pallas kernels on a GPU in bfloat16, XLA's
+    convolutions in float32 and on a CPU; a named form is kept as named."""
+    auto = dlctus.Config()
+    assert auto.kernels == "auto"
+    assert dlctus.Config(dtype="bfloat16").trunk_form("gpu") == "pallas"
+    assert dlctus.Config(dtype="bfloat16").trunk_form("cuda") == "pallas"
+    assert auto.trunk_form("gpu") == "xla" and auto.trunk_form("cpu") == "xla"
+    assert dlctus.Config(dtype="bfloat16").trunk_form("cpu") == "xla"
+    assert dlctus.Config(kernels="im2col", dtype="bfloat16").trunk_form("gpu") == "im2col"
+    assert dlctus.Config(kernels="pallas").trunk_form("cpu") == "pallas"
 
 
 def test_kernels_config_is_checked():

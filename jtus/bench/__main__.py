@@ -24,12 +24,12 @@ import sys
 from jtus import cli, files, models, recipe, sampling
 from jtus import config as run_config
 from jtus.bench.report import markdown
+from jtus.models import dlctus
 from jtus.bench.workloads import SIZES, bench_infer, bench_train, peaks
 from jtus.timing import hardware
 
 
-def _infer_rows(args):
-    rows = []
+def _infer_rows(args, rows, saved):
     for name in args.models:
         spec = models.spec(name)
         dtypes = [d for d in args.dtypes if d in spec.dtypes] or ["float32"]
@@ -45,38 +45,52 @@ def _infer_rows(args):
                     rec = bench_infer(name, f, SIZES[size], args.repeats, dt, reference=ref,
                                       **over)
                     rows.append(rec)
+                    saved()
                     _progress(rec)
-    return rows
 
 
-def _train_rows(args, peak):
-    rows = []
+def _train_rows(args, peak, rows, saved):
     for name in args.train_models:
         warps = args.train_warps if "warp" in models.spec(name).config(4).__dataclass_fields__ \
             else args.train_warps[:1]
-        for warp in warps:
+        kerns = [k for k in args.train_kernels if k in models.spec(name).kernels] or ["auto"]
+        for warp, k in [(w, k) for w in warps for k in kerns]:
             rec = bench_train(args.factors[0], args.train_crop, args.train_batch,
                               args.train_seq, args.train_loss_frames, args.repeats,
                               remat=run_config.REMAT_CHOICES[args.train_remat],
                               unroll=True if args.train_unroll else 1,
                               conv_backward=args.train_conv_backward, warp=warp,
-                              reference=args.torch, hoist=args.train_hoist, name=name)
+                              reference=args.torch and k == kerns[0], hoist=args.train_hoist,
+                              name=name, kernels=k)
             if peak:
                 rec["bound_s_at_conv_peak"] = rec["gflop_per_step"] / peak
             _progress(rec)
             rows.append(rec)
-    return rows
+            saved()
 
 
-def run(args):
+def run(args, save=lambda report: None):
+    """The report; ``save(report)`` is called after each measurement with what has been
+    measured so far (an interrupted run keeps its rows)."""
     report = {"hardware": hardware(), "command": "python -m jtus.bench " + " ".join(args.argv)}
+    saved = lambda: save(report)  # noqa: E731
     if "peak" in args.what:
         report["peak"] = peaks(args.repeats)
+        saved()
     if "infer" in args.what:
-        report["infer"] = _infer_rows(args)
+        _infer_rows(args, report.setdefault("infer", []), saved)
     if "train" in args.what:
-        report["train"] = _train_rows(args, report.get("peak", {}).get("conv_dlctus_gflops"))
+        _train_rows(args, report.get("peak", {}).get("conv_dlctus_gflops"),
+                    report.setdefault("train", []), saved)
     return report
+
+
+def _write(report, out):
+    """The JSON report at ``out``, and its table beside it as Markdown, each atomically."""
+    with files.atomic_path(out) as tmp, open(tmp, "w") as fh:
+        json.dump(report, fh, indent=1)
+    with files.atomic_path(os.path.splitext(out)[0] + ".md") as tmp, open(tmp, "w") as fh:
+        fh.write(markdown(report) + "\n")
 
 
 def _progress(rec):
@@ -98,9 +112,10 @@ def _parser():
     p.add_argument("--formulations", nargs="+", default=["opt2"],
                    choices=("standard", "opt1", "opt2"),
                    help="equivalent formulations, for the models that have them")
-    p.add_argument("--kernels", nargs="+", default=["xla"], choices=("xla", "pallas"),
-                   help="trunk implementations, for the models that have them (pallas: the "
-                        "fused kernel; interpret mode on a CPU, so time it on a GPU)")
+    p.add_argument("--kernels", nargs="+", default=["auto"], choices=dlctus.KERNELS,
+                   help="trunk implementations, for the models that have them (im2col: "
+                        "matmuls; pallas: Triton kernels, interpret mode on a CPU, so time "
+                        "them on a GPU)")
     p.add_argument("--repeats", type=int, default=5)
     t = p.add_argument_group("training step (the first --factors)")
     t.add_argument("--train-models", nargs="+", choices=models.TRAINABLE,
@@ -117,6 +132,8 @@ def _parser():
     t.add_argument("--train-hoist", action="store_true",
                    help="compute the carry-independent part of each frame before the scan "
                         "(Config.hoist)")
+    t.add_argument("--train-kernels", nargs="+", default=["auto"], choices=dlctus.KERNELS,
+                   help="trunk implementations to time the training step with")
     t.add_argument("--train-conv-backward", choices=("custom", "autodiff"), default="custom")
     t.add_argument("--train-preset", metavar="NAME", choices=tuple(run_config.PRESETS),
                    help="time the training step of a jtus.train preset (e.g. diverse, the "
@@ -154,15 +171,8 @@ def main(argv=None):
         plan = recipe.plan(cfg)
         args.train_crop, args.train_batch = cfg.crop, cfg.batch
         args.train_seq, args.train_loss_frames = plan.window, plan.loss_frames
-    report = run(args)
-    text = markdown(report)
-    if args.out:  # the JSON report, and its table beside it as Markdown
-        with files.atomic_path(args.out) as tmp, open(tmp, "w") as fh:
-            json.dump(report, fh, indent=1)
-        with files.atomic_path(os.path.splitext(args.out)[0] + ".md") as tmp, \
-                open(tmp, "w") as fh:
-            fh.write(text + "\n")
-    print(json.dumps(report, indent=1) if args.json else text)
+    report = run(args, (lambda r: _write(r, args.out)) if args.out else (lambda r: None))
+    print(json.dumps(report, indent=1) if args.json else markdown(report))
     return 0
 
 

@@ -42,13 +42,14 @@ def _infer(report):
 
 
 def _train(report):
-    lines = ["| model | warp | s/step | frames/s | torch s/step | torch frames/s | torch/jtus | "
-             "step memory (MiB) | x bound at conv peak |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    lines = ["| model | warp | kernels | s/step | frames/s | torch s/step | torch frames/s | "
+             "torch/jtus | step memory (MiB) | x bound at conv peak |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in report["train"]:
         bound = r.get("bound_s_at_conv_peak")
         lines.append(
-            f"| {r['model']} | {r['warp']} | {r['s_per_step']:.3f} | {r['frames_per_s']:.1f} | "
+            f"| {r['model']} | {r['warp']} | {r.get('kernels', '-')} | {r['s_per_step']:.3f} | "
+            f"{r['frames_per_s']:.1f} | "
             f"{_f(r, 'torch_s_per_step', '.3f')} | {_f(r, 'torch_frames_per_s', '.1f')} | "
             f"{_f(r, 'torch_over_jtus', '.2f')} | {_f(r, 'peak_mib', '.0f')} | "
             f"{format(r['s_per_step'] / bound, '.2f') if bound else NONE} |")

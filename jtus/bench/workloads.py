@@ -115,6 +115,8 @@ def bench_infer(name, factor, size, repeats, dtype="float32", reference=True, **
     rec = {"model": name, "factor": factor, "size": f"{H}x{W}", "dtype": dtype, **overrides,
            "ms": seconds * 1e3, "gflop": c.flops / 1e9, "gflops": c.flops / seconds / 1e9,
            "mbytes": c.bytes / 1e6}
+    if hasattr(model.config, "trunk_form"):  # the form that ran ("auto" resolved)
+        rec["kernels"] = model.config.trunk_form()
     if "torch" in t:
         rec.update(torch_ms=t["torch"] * 1e3, torch_over_jtus=t["torch"] / seconds)
     if "network" in t:
@@ -124,14 +126,16 @@ def bench_infer(name, factor, size, repeats, dtype="float32", reference=True, **
 
 
 def train_workload(factor, crop, batch, seq, loss_frames, remat=False, unroll=1,
-                   conv_backward="custom", warp="bicubic", hoist=False, name="dlctus"):
+                   conv_backward="custom", warp="bicubic", hoist=False, name="dlctus",
+                   kernels="auto"):
     """One BPTT training step of ``name`` (its own loss, Adam) on random data.
-    ``conv_backward`` and ``warp`` apply to models whose config has them. Returns
+    ``conv_backward``, ``warp`` and ``kernels`` apply to models whose config has them. Returns
     ``(run, hlo, model)``: ``run()`` takes one step and blocks; ``hlo()`` is the
     compiled module's text (for profiles)."""
     spec = models.spec(name)
     fields = spec.config(factor).__dataclass_fields__
-    over = {k: v for k, v in (("conv_backward", conv_backward), ("warp", warp)) if k in fields}
+    over = {k: v for k, v in (("conv_backward", conv_backward), ("warp", warp),
+                              ("kernels", kernels)) if k in fields}
     model = models.build(name, factor, **over)
     opt = optax.adam(1e-4)
     ts = [train.create_train_state(model.init(jax.random.PRNGKey(0)), opt)]
@@ -164,11 +168,11 @@ def train_workload(factor, crop, batch, seq, loss_frames, remat=False, unroll=1,
 
 def bench_train(factor, crop, batch, seq, loss_frames, repeats, remat=False, unroll=1,
                 conv_backward="custom", warp="bicubic", reference=True, hoist=False,
-                name="dlctus"):
+                name="dlctus", kernels="auto"):
     """The training-step timing record; with ``reference``, the PyTorch reference's
     step (when it has one with a training workload) timed alternately with it."""
     run, _, model = train_workload(factor, crop, batch, seq, loss_frames, remat, unroll,
-                                   conv_backward, warp, hoist, name)
+                                   conv_backward, warp, hoist, name, kernels)
     # a training step runs the network forward and, for the frames that reach the loss,
     # its two backward products (input and kernel gradients), each as costly as the
     # forward: at least 3x the forward FLOPs of every frame (BPTT reaches all of them)
@@ -176,7 +180,8 @@ def bench_train(factor, crop, batch, seq, loss_frames, repeats, remat=False, unr
     rec = {"model": name, "factor": factor, "crop": crop, "batch": batch, "seq": seq,
            "loss_frames": loss_frames, "gflop_per_step": 3 * fwd / 1e9,
            "remat": remat, "unroll": bool(unroll is True), "conv_backward": conv_backward,
-           "warp": getattr(model.config, "warp", "-"), "hoist": hoist}
+           "warp": getattr(model.config, "warp", "-"), "hoist": hoist,
+           "kernels": model.config.trunk_form() if hasattr(model.config, "trunk_form") else "-"}
     try:  # what XLA plans for the step: temporaries plus arguments and outputs
         mem = run.compiled().memory_analysis()
         rec["peak_mib"] = (mem.temp_size_in_bytes + mem.argument_size_in_bytes

@@ -47,7 +47,8 @@ from jtus.models.base import (Cost, ExportIO, Model, Spec, bind, carry_dtype, co
 
 FORMULATIONS = ("standard", "opt1", "opt2")
 CONV_BACKWARDS = ("autodiff", "custom")
-KERNELS = ("xla", "pallas")  # the trunk as XLA ops, or the fused kernel (models.kernels)
+# the trunk's forms (jtus.models.kernels); "auto" picks by measurement (Config.trunk_form)
+KERNELS = ("auto", "xla", "im2col", "pallas")
 DOWN = 4  # the network works at 1/4 of the HR resolution
 
 
@@ -66,7 +67,7 @@ class Config:
     # and backward gives the same values, so they change speed only.
     formulation: str = "opt2"
     conv_backward: str = "custom"    # or "autodiff": see layers.conv_edge_fast
-    kernels: str = "xla"         # or "pallas": the trunk as one fused kernel per tile
+    kernels: str = "auto"        # "xla", "im2col" (matmuls), "pallas" (Triton kernels)
     channels: int = 32
     blocks: int = 4
 
@@ -89,6 +90,17 @@ class Config:
         if self.kernels not in KERNELS:
             raise ValueError(f"kernels: expected one of {KERNELS}, got {self.kernels!r}")
         compute_dtype(self.dtype)
+
+    def trunk_form(self, backend=None):
+        """The trunk's form on ``backend`` (JAX's default if None): ``kernels``, or for
+        ``"auto"`` the Pallas kernels on a GPU in bfloat16, the one case where they were
+        measured faster than XLA's convolutions at every size and factor (an H200,
+        docs/performance.md), and XLA's everywhere else (float32 on a GPU, where XLA
+        uses TF32 and the kernels full float32; every CPU, where Pallas interprets)."""
+        if self.kernels != "auto":
+            return self.kernels
+        gpu = (backend or jax.default_backend()) in ("gpu", "cuda")
+        return "pallas" if gpu and self.dtype == "bfloat16" else "xla"
 
 
 class State(NamedTuple):
@@ -126,8 +138,9 @@ def init_state(frame: Frame, config: Config = Config()) -> State:
 
 
 def _trunk(params, h, config):
-    if config.kernels == "pallas":
-        return kernels.trunk(params, h, config.blocks)
+    form = config.trunk_form()
+    if form != "xla":
+        return kernels.trunk(params, h, config.blocks, form)
     conv = layers.conv_edge_fast if config.conv_backward == "custom" else layers.conv_edge
     for i in range(config.blocks):
         blk = params[f"block{i + 1}"]

@@ -48,8 +48,6 @@ def unsupported(config):
         return f"warp_a={config.warp_a} (GridSample's cubic kernel has a=-0.75)"
     if config.dilation:
         return "dilation=True (no ONNX operator for the 3x3 nearest-depth selection)"
-    if config.kernels != "xla":
-        return f"kernels={config.kernels!r}"
     return None
 
 

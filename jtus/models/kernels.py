@@ -1,22 +1,32 @@
-"""A fused Pallas kernel for DLCTUS's trunk: its residual blocks (two 3x3 edge-padded
-convolutions each, ReLU between, the block's input added back) in one kernel per tile.
+"""DLCTUS's trunk (four residual blocks of two edge-padded 3x3 32->32 convolutions, ReLU
+between, the block's input added back) in three forms that give the same values:
 
-Each program of the grid ``(batch, tile rows, tile columns)`` reads its tile of the
-trunk's input with a halo of one pixel per convolution (8 for four blocks), runs every
-block on it, and writes the tile. Each 3x3 convolution is nine matrix products of the
-tile's shifted views with the tap's 32x32 kernel, accumulated in float32 whatever the
-compute dtype, and shrinks the tile by a pixel on each side; the residual adds the
-input cropped to match. At the image's border the convolutions must see edge-padded
-activations at every layer, not only at the input: after each layer, the positions of
-the tile that lie outside the image take the value of the image's edge row (then
-column), picked by a masked sum so that the kernel needs no gather. Positions inside
-the image never read a value the halo does not hold, so the tile's centre is exact.
+- ``trunk_xla``: XLA's convolution op (cuDNN on a GPU, oneDNN/Eigen on a CPU).
+- ``trunk_im2col``: each convolution as one matrix product of the nine shifted views of
+  the edge-padded input, concatenated along channels (``[N, 9C] @ [9C, C]``). A 3x3
+  convolution with 32 channels is too narrow for cuDNN to run near a GPU's peak; a
+  matmul with a 288-deep contraction is a plain GEMM XLA hands to cuBLAS or Triton.
+- ``trunk_pallas``: one Pallas (Triton) kernel per convolution. Each program computes a
+  ``TILE`` of output pixels: nine loads of the tile's shifted window, with row and
+  column indices clamped to the image (the edge padding, with no padded copy), nine
+  ``[pixels, C] @ [C, C]`` products accumulated in float32 whatever the compute dtype,
+  then the bias and the ReLU or the residual add in the same kernel. The activations
+  between convolutions keep a layout rounded up to whole tiles (the clamped indices
+  never read the rounding), so the trunk pads once and crops once.
 
-``trunk(params, h, config, interpret)`` has the XLA trunk's gradients (a custom VJP
-whose backward differentiates ``trunk_xla``). On a CPU the kernel runs in Pallas's
-interpret mode: the tests check it there against the XLA path, to 1e-5 in float32.
-``dlctus.Config(kernels="pallas")`` selects it; XLA stays the default until the kernel
-is measured faster on a GPU (docs/performance.md).
+Why not the whole trunk in one kernel per tile with halos: Pallas's Triton lowering
+needs every array in a kernel to have power-of-two sizes and cannot slice a value, so
+the halo cannot shrink layer by layer. A 32x32 tile with the eight-pixel halo would
+compute every convolution on 1,024 positions to keep 256 (4x the FLOPs), and shifting
+an activation would go through memory anyway. Pallas's default GPU back end on JAX
+0.10 (Mosaic GPU) stages whole blocks in shared memory (232 KB on a Hopper), which an
+image does not fit; the kernel names the Triton back end.
+
+``trunk(params, h, blocks, kernels)`` picks the form; ``"pallas"`` has the XLA trunk's
+gradients (a custom VJP whose backward differentiates ``trunk_xla``). On a CPU the
+kernel runs in Pallas's interpret mode: the tests check it there against the XLA path,
+to 1e-5 in float32. ``dlctus.Config(kernels=...)`` selects the form; XLA's stays the
+default wherever another is not measured faster (docs/performance.md).
 """
 
 from __future__ import annotations
@@ -26,10 +36,16 @@ import functools
 import jax
 import jax.numpy as jnp
 from jax.experimental import pallas as pl
+from jax.experimental.pallas import triton as pltriton
 
 from jtus.models import layers
+from jtus.sampling import pad_edge
 
-TILE = 16  # output pixels per tile side (before rounding to the image)
+# output pixels per program (rows, columns; powers of two for Triton) and warps per
+# program: the fastest of those timed on an H200 at 720p, 1080p and 4K (bfloat16;
+# docs/results/gpu/trunk-forms.json)
+TILE = (8, 32)
+NUM_WARPS = 8
 
 
 def stack_blocks(params, blocks):
@@ -42,90 +58,101 @@ def stack_blocks(params, blocks):
 
 
 def trunk_xla(w1, b1, w2, b2, h):
-    """The trunk as XLA ops: the reference the kernel matches, and its backward."""
+    """The trunk as XLA convolutions: the reference the other forms match, and the
+    Pallas form's backward."""
     for i in range(w1.shape[0]):
         r = jax.nn.relu(layers.conv_edge_fast(h, w1[i], b1[i]))
         h = h + layers.conv_edge_fast(r, w2[i], b2[i])
     return h
 
 
-def _conv_valid(h, k, b):
-    """3x3 VALID convolution of a tile ``[S,S',C]`` as nine matmuls, float32 sums."""
-    s0, s1, c = h.shape[0] - 2, h.shape[1] - 2, h.shape[2]
-    out = jnp.zeros((s0 * s1, k.shape[-1]), jnp.float32)
-    for dy in range(3):
-        for dx in range(3):
-            patch = h[dy:dy + s0, dx:dx + s1, :].reshape(s0 * s1, c)
-            out = out + jnp.dot(patch, k[dy, dx], preferred_element_type=jnp.float32)
-    return (out + b.astype(jnp.float32)).reshape(s0, s1, -1)
+def conv_im2col(x, k, b):
+    """Edge-padded 3x3 convolution of ``x [B,H,W,C]`` as one matmul: the nine shifted
+    views of the padded input side by side (tap ``(dy, dx)`` at channels
+    ``(3 dy + dx) C ...``), times the HWIO kernel read as ``[9C, O]``."""
+    H, W = x.shape[1:3]
+    xp = pad_edge(x, 1)
+    cols = jnp.concatenate([xp[:, dy:dy + H, dx:dx + W, :] for dy in range(3)
+                            for dx in range(3)], axis=-1)
+    return cols @ k.reshape(-1, k.shape[-1]).astype(x.dtype) + b.astype(x.dtype)
 
 
-def _edge_fix(h, row0, col0, height, width):
-    """Positions of the tile outside the image take the image's edge value (rows,
-    then columns, so corners take the corner). ``row0, col0``: the image coordinates
-    of the tile's first row and column."""
-    rows = row0 + jax.lax.broadcasted_iota(jnp.int32, h.shape, 0)
-    cols = col0 + jax.lax.broadcasted_iota(jnp.int32, h.shape, 1)
-    zero = jnp.zeros_like(h)
-    top = jnp.sum(jnp.where(rows == 0, h, zero), axis=0, keepdims=True)
-    bottom = jnp.sum(jnp.where(rows == height - 1, h, zero), axis=0, keepdims=True)
-    h = jnp.where(rows < 0, top, jnp.where(rows > height - 1, bottom, h))
-    left = jnp.sum(jnp.where(cols == 0, h, zero), axis=1, keepdims=True)
-    right = jnp.sum(jnp.where(cols == width - 1, h, zero), axis=1, keepdims=True)
-    return jnp.where(cols < 0, left, jnp.where(cols > width - 1, right, h))
+def trunk_im2col(w1, b1, w2, b2, h):
+    for i in range(w1.shape[0]):
+        r = jax.nn.relu(conv_im2col(h, w1[i], b1[i]))
+        h = h + conv_im2col(r, w2[i], b2[i])
+    return h
 
 
-def _kernel(x_ref, w1_ref, b1_ref, w2_ref, b2_ref, o_ref, *, tile, height, width, blocks):
-    halo = 2 * blocks
-    ty, tx = pl.program_id(1), pl.program_id(2)
+def _conv_kernel(x_ref, k_ref, b_ref, *refs, tile, height, width, relu, residual):
+    """One tile of ``conv(x) + bias``, then ReLU or ``+ res`` (``refs``: the residual's
+    ref when ``residual``, then the output's)."""
+    o_ref = refs[-1]
+    bi, ty, tx = pl.program_id(0), pl.program_id(1), pl.program_id(2)
     th, tw = tile
-    h = x_ref[pl.program_id(0), pl.ds(ty * th, th + 2 * halo), pl.ds(tx * tw, tw + 2 * halo), :]
-    dt = h.dtype
-    r0, c0 = ty * th - halo, tx * tw - halo
-    for i in range(blocks):
-        r = jax.nn.relu(_conv_valid(h, w1_ref[i], b1_ref[i])).astype(dt)
-        r = _edge_fix(r, r0 + 2 * i + 1, c0 + 2 * i + 1, height, width)
-        h = (h[2:-2, 2:-2, :].astype(jnp.float32)
-             + _conv_valid(r, w2_ref[i], b2_ref[i])).astype(dt)
-        h = _edge_fix(h, r0 + 2 * i + 2, c0 + 2 * i + 2, height, width)
-    o_ref[0] = h
+    c = x_ref.shape[-1]
+    ys = ty * th + jax.lax.broadcasted_iota(jnp.int32, (th, 1), 0)
+    xs = tx * tw + jax.lax.broadcasted_iota(jnp.int32, (1, tw), 1)
+    acc = jnp.zeros((th * tw, k_ref.shape[-1]), jnp.float32)
+    for dy in range(3):
+        rows = jnp.clip(ys + (dy - 1), 0, height - 1)
+        for dx in range(3):
+            cols = jnp.clip(xs + (dx - 1), 0, width - 1)
+            patch = x_ref[bi, rows, cols, :].reshape(th * tw, c)
+            acc = acc + jnp.dot(patch, k_ref[dy, dx, :, :], preferred_element_type=jnp.float32)
+    acc = acc + b_ref[...].astype(jnp.float32)[None, :]
+    if relu:
+        acc = jnp.maximum(acc, 0.0)
+    out = acc.reshape(th, tw, -1)
+    if residual:
+        out = out + refs[0][bi, pl.ds(ty * th, th), pl.ds(tx * tw, tw), :].astype(jnp.float32)
+    o_ref[0] = out.astype(o_ref.dtype)
 
 
-def _tile(n):
-    """A tile side for ``n`` pixels: ``TILE``, or ``n`` rounded up to 8 if smaller."""
-    return min(TILE, -(-n // 8) * 8)
-
-
-def trunk_pallas(w1, b1, w2, b2, h, interpret=False):
-    """The fused trunk on ``h [B,H,W,C]`` (the stacked weights of ``stack_blocks``)."""
-    blocks = w1.shape[0]
-    halo = 2 * blocks
-    B, H, W, C = h.shape
-    th, tw = _tile(H), _tile(W)
-    ny, nx = -(-H // th), -(-W // tw)
-    x = jnp.pad(h, ((0, 0), (halo, halo + ny * th - H), (halo, halo + nx * tw - W), (0, 0)),
-                mode="edge")
-    dt = h.dtype
-    w1, b1, w2, b2 = (a.astype(dt) for a in (w1, b1, w2, b2))
-    full = lambda a: pl.BlockSpec(a.shape, lambda b, i, j: (0,) * a.ndim)  # noqa: E731
-    out = pl.pallas_call(
-        functools.partial(_kernel, tile=(th, tw), height=H, width=W, blocks=blocks),
-        out_shape=jax.ShapeDtypeStruct((B, ny * th, nx * tw, C), dt),
-        grid=(B, ny, nx),
-        in_specs=[full(x), full(w1), full(b1), full(w2), full(b2)],
-        out_specs=pl.BlockSpec((1, th, tw, C), lambda b, i, j: (b, i, j, 0)),
+def conv_pallas(x, k, b, size, relu=False, res=None, tile=TILE, num_warps=NUM_WARPS,
+                interpret=False):
+    """Edge-padded 3x3 convolution of the image ``size = (H, W)`` held at the top left
+    of ``x [B, H', W', C]`` (``H' W'`` whole tiles), with ReLU or ``+ res`` fused; the
+    output has ``x``'s layout (what lies past ``size`` is not meaningful)."""
+    B, Hp, Wp, _ = x.shape
+    th, tw = tile
+    grid = (B, Hp // th, Wp // tw)
+    full = lambda a: pl.BlockSpec(a.shape, lambda *_: (0,) * a.ndim)  # noqa: E731
+    ins = [x, k.astype(x.dtype), b.astype(x.dtype)] + ([] if res is None else [res])
+    kernel = functools.partial(_conv_kernel, tile=tile, height=size[0], width=size[1],
+                               relu=relu, residual=res is not None)
+    return pl.pallas_call(
+        kernel,
+        out_shape=jax.ShapeDtypeStruct((B, Hp, Wp, k.shape[-1]), x.dtype),
+        grid=grid,
+        in_specs=[full(a) for a in ins],
+        out_specs=pl.BlockSpec((1, th, tw, k.shape[-1]), lambda i, j, m: (i, j, m, 0)),
         interpret=interpret,
-    )(x, w1, b1, w2, b2)
-    return out[:, :H, :W, :]
+        compiler_params=None if interpret else pltriton.CompilerParams(num_warps=num_warps),
+        name=f"jtus_conv3x3{'_relu' if relu else ''}{'_res' if res is not None else ''}",
+    )(*ins)
+
+
+def trunk_pallas(w1, b1, w2, b2, h, tile=TILE, num_warps=NUM_WARPS, interpret=False):
+    """The trunk on ``h [B,H,W,C]`` (the stacked weights of ``stack_blocks``), eight
+    ``conv_pallas`` calls on a layout rounded up to whole tiles."""
+    B, H, W, C = h.shape
+    th, tw = tile
+    x = jnp.pad(h, ((0, 0), (0, -H % th), (0, -W % tw), (0, 0)), mode="edge")
+    for i in range(w1.shape[0]):
+        opts = dict(tile=tile, num_warps=num_warps, interpret=interpret)
+        r = conv_pallas(x, w1[i], b1[i], (H, W), relu=True, **opts)
+        x = conv_pallas(r, w2[i], b2[i], (H, W), res=x, **opts)
+    return x[:, :H, :W, :]
 
 
 @functools.partial(jax.custom_vjp, nondiff_argnums=(5,))
 def _trunk(w1, b1, w2, b2, h, interpret):
-    return trunk_pallas(w1, b1, w2, b2, h, interpret)
+    return trunk_pallas(w1, b1, w2, b2, h, interpret=interpret)
 
 
 def _trunk_fwd(w1, b1, w2, b2, h, interpret):
-    return trunk_pallas(w1, b1, w2, b2, h, interpret), (w1, b1, w2, b2, h)
+    return trunk_pallas(w1, b1, w2, b2, h, interpret=interpret), (w1, b1, w2, b2, h)
 
 
 def _trunk_bwd(interpret, res, g):
@@ -136,9 +163,15 @@ def _trunk_bwd(interpret, res, g):
 _trunk.defvjp(_trunk_fwd, _trunk_bwd)
 
 
-def trunk(params, h, blocks, interpret=None):
-    """DLCTUS's trunk on ``h [B,H/4,W/4,C]`` through the fused kernel; ``interpret``
-    None: Pallas's interpret mode on a CPU backend, compiled elsewhere."""
+def trunk(params, h, blocks, kernels="pallas", interpret=None):
+    """DLCTUS's trunk on ``h [B,H/4,W/4,C]`` in the form ``kernels`` names (``"xla"``,
+    ``"im2col"`` or ``"pallas"``); ``interpret`` None: Pallas's interpret mode on a CPU
+    backend, compiled elsewhere."""
+    args = stack_blocks(params, blocks)
+    if kernels == "xla":
+        return trunk_xla(*args, h)
+    if kernels == "im2col":
+        return trunk_im2col(*args, h)
     if interpret is None:
         interpret = jax.default_backend() == "cpu"
-    return _trunk(*stack_blocks(params, blocks), h, interpret)
+    return _trunk(*args, h, interpret)
