@@ -21,7 +21,7 @@ mkdir -p "$OUT"
 PY=${PYTHON:-python3}
 export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1
 CKPT=${1:-}
-PARTS=${PARTS:-forms,tests,bench,loop,train}   # e.g. PARTS=train to rerun the training part alone
+PARTS=${PARTS:-forms,tests,bench,loop,profile,train}   # e.g. PARTS=train to rerun the training part alone
 has() { [[ ",$PARTS," == *",$1,"* ]]; }
 log() { echo "== $(date +%T) $*" | tee -a "$OUT/run.log"; }
 
@@ -83,6 +83,13 @@ if has loop; then
 log "frame loop"
 timeout 150 $PY experiments/gpu/frame_loop.py --out "$OUT/frame-loop.json" 2>&1 \
   | tail -n 20 >> "$OUT/run.log"
+fi
+
+# where the GPU time of the inference and training steps goes, kernel by kernel
+if has profile; then
+log "profile"
+timeout 120 $PY experiments/gpu/profile_step.py --out "$OUT/profile-step.json" 2>&1 \
+  | tail -n 60 >> "$OUT/run.log"
 fi
 
 # 4. a short run at the thesis's scale from the CPU checkpoint, on randomized scenes
