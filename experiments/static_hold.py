@@ -150,7 +150,9 @@ def main():
     p.add_argument("--thesis", default=THESIS_DIR,
                    help="folder of the thesis's released checkpoints ('' for none)")
     p.add_argument("--factors", type=int, nargs="+", default=[4, 2], choices=(2, 4))
-    p.add_argument("--mitsuba", default="data/external-hold")
+    p.add_argument("--mitsuba", default="data/external-hold",
+                   help="folder of the Mitsuba hold clip ('' to leave that family out, as "
+                        "when choosing on the validation levels)")
     p.add_argument("--size", type=int, default=128, help="game holds: frame size")
     p.add_argument("--levels", nargs="+", default=list(game.TEST_LEVELS))
     p.add_argument("--name", default="static-hold")
@@ -164,7 +166,8 @@ def main():
     for f in args.factors:
         specs = args.models or default_models(f, args.thesis)
         entries = loading.load_all([s.replace("{f}", str(f)) for s in specs], f)
-        families = {"mitsuba": (mitsuba_curves(entries, f, args.mitsuba), None)}
+        families = {"mitsuba": (mitsuba_curves(entries, f, args.mitsuba), None)} \
+            if args.mitsuba else {}
         if have_game:
             families["game"] = game_curves(entries, f, holds[f])
         for fam, (curves, worst) in families.items():
@@ -187,9 +190,10 @@ def main():
              "ripple (dB) | overshoot (dB) | worst level's cycle change (dB) |\n"
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n"
              + "\n".join(rows))
+    mitsuba = (f"mitsuba: the `hold` clip's frames {MITSUBA_MOVING}-"
+               f"{MITSUBA_MOVING + HOLD - 1}; " if args.mitsuba else "")
     note = (f"Holds of {HOLD} frames ({HOLD // CYCLE} cycles of the {CYCLE}-position jitter). "
-            f"mitsuba: the `hold` clip's frames {MITSUBA_MOVING}-{MITSUBA_MOVING + HOLD - 1}; "
-            f"game: the mean curve over the levels {', '.join(args.levels)} at "
+            f"{mitsuba}game: the mean curve over the levels {', '.join(args.levels)} at "
             f"{args.size}x{args.size}, 16-spp targets. fall: best of the last {WINDOW} frames "
             "minus the last (target: at most 0.1 dB; on a converged model it reads the "
             "jitter cycle's ripple); cycle change: the last cycle's mean minus the one "

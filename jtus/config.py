@@ -147,6 +147,20 @@ PRESETS["game"] = dataclasses.replace(PRESETS["diverse"], dataset="data/game.h5"
 # (python -m jtus.data generate --preset diverse --out data/diverse.h5 first)
 PRESETS["game-mix"] = dataclasses.replace(PRESETS["game"], mix_dataset="data/diverse.h5",
                                           mix_fraction=0.5)
+# the game levels' static holds (data preset game-holds: 16 moving frames, then 32
+# where only the jitter moves): whole 48-frame sequences as TBPTT windows of 16, so the
+# state after a jitter cycle of stillness gets a gradient; a fine-tune from weights
+# that already upsample moving content (docs/weights.md):
+#   python -m jtus.train --preset game-holds --init-from jtus/weights/dlctus-x4.msgpack
+PRESETS["game-holds"] = dataclasses.replace(
+    PRESETS["game"], dataset="data/game-holds.h5", data_preset="game-holds", seq_len=48,
+    k1=16, k2=16, loss_frames=16, lr=1e-4, warmup_steps=20, epochs=4, steps_per_epoch=100,
+    val_videos=5, val_batches=2)
+# both families' holds, half and half in every batch
+#   (python -m jtus.data generate --preset diverse-holds --out data/diverse-holds.h5 first)
+PRESETS["holds-mix"] = dataclasses.replace(PRESETS["game-holds"],
+                                           mix_dataset="data/diverse-holds.h5",
+                                           mix_fraction=0.5)
 PRESETS["hdr-tiny"] = dataclasses.replace(PRESETS["tiny"], dataset="data/hdr-tiny.h5",
                                           data_preset="hdr-tiny",
                                           model_overrides=(("hdr", True),))

@@ -67,6 +67,32 @@ def test_generate_is_deterministic(tiny_data, tmp_path):
     assert contents(again) == contents(tiny_data)
 
 
+def test_generated_holds_move_then_stand_still(tmp_path):
+    """A preset with ``hold_from``: each video is the scene's own video up to that
+    frame, then the last moving frame's scene with only the jitter moving: the same
+    target, zero motion, the input of the same jitter position repeated, no reset."""
+    p = dataclasses.replace(generate.preset("tiny"), splits={
+        "train": (("camera_orbit",), 1, 24), "val": ((), 1, 1), "test": ((), 1, 1)},
+        jitters=("thesis",), hold_from=5)
+    generate.generate(p, tmp_path / "holds.h5", progress=False)
+    ref = sim.render_video(sim.get_scene("camera_orbit"), "train", 0, 5, size=(32, 32),
+                           factors=(2, 4), spp=4)
+    with h5py.File(tmp_path / "holds.h5", "r") as fh:
+        g = fh["train/camera_orbit_00"]
+        assert g.attrs["hold_from"] == 5 and g["target"].shape[0] == 24
+        target, reset = g["target"][:], g["reset"][:]
+        x4 = {k: g[f"x4/{k}"][:] for k in ("color", "depth", "motion", "jitter")}
+    np.testing.assert_array_equal(target[:5], ref["target"].astype(np.float16))
+    np.testing.assert_array_equal(x4["motion"][:5], ref["x4"]["motion"])
+    assert np.abs(ref["x4"]["motion"][1:5]).max() > 0.01  # the camera moved before
+    assert (target[5:] == target[4]).all() and not x4["motion"][5:].any()
+    assert reset[0] and not reset[1:].any()
+    # frames 16 apart share the thesis's jitter position, and so their input
+    np.testing.assert_array_equal(x4["jitter"][5], x4["jitter"][21])
+    np.testing.assert_array_equal(x4["color"][5], x4["color"][21])
+    assert not np.array_equal(x4["color"][5], x4["color"][6])
+
+
 def test_interrupted_generate_leaves_no_file(tmp_path, monkeypatch):
     from jtus.sim import video
 

@@ -17,6 +17,7 @@ import subprocess
 import sys
 import tempfile
 import threading
+from typing import Optional
 
 import h5py
 import numpy as np
@@ -41,7 +42,9 @@ class Preset:
     ``effects``: effects added to every scene (``("hdr", ...)`` for HDR data).
     ``jitters``: the jitter sequences a video draws from (``jtus.sampling.jitter``);
     each video's choice and its starting phase come from its own seed and are stored
-    (``jitter`` per frame, the sequence's name in the video's attrs)."""
+    (``jitter`` per frame, the sequence's name in the video's attrs).
+    ``hold_from``: each video moves for this many frames, then holds still while only
+    the jitter moves (``VideoRenderer.video``), stored in the video's attrs."""
     size: tuple
     factors: tuple
     spp: int
@@ -49,6 +52,7 @@ class Preset:
     splits: dict
     jitters: tuple = ("thesis",)
     effects: tuple = ()   # added to every scene's own (``jtus.sim.with_effects``)
+    hold_from: Optional[int] = None  # every video stands still from this frame on
 
     def total_frames(self):
         return sum(len(s) * n * t for s, n, t in self.splits.values())
@@ -121,6 +125,18 @@ def _presets():
             "train": (_levels(game.TRAIN_LEVELS), 4, 16),
             "val": (_levels(game.VAL_LEVELS), 2, 16),
             "test": (_levels(game.TEST_LEVELS), 2, 24)}, VARIETY),
+        # static holds of the game levels: 16 frames of the level's camera path, then 32
+        # where only the jitter moves (two cycles of a 16-position sequence), to train
+        # and check a model's steady state; no test split (the test levels' holds are
+        # experiments/static_hold.py's)
+        "game-holds": Preset((128, 128), (2, 4), 16, 1, {
+            "train": (_levels(game.TRAIN_LEVELS), 1, 48),
+            "val": (_levels(game.VAL_LEVELS), 1, 48), "test": ((), 1, 1)}, VARIETY,
+            hold_from=16),
+        # the same holds of the randomized scenes (the diverse preset's seeds)
+        "diverse-holds": Preset((192, 192), (2, 4), 16, 1, {
+            "train": (_random("train", 200), 1, 48), "val": (_random("val", 8), 1, 48),
+            "test": ((), 1, 1)}, VARIETY, hold_from=16),
     }
 
 
@@ -148,7 +164,7 @@ _HDR = ("hdr", "specular", "emissive_flicker")
 
 
 PRESET_NAMES = ("tiny", "default", "long", "paper", "diverse", "diverse-tiny", "hdr", "hdr-tiny",
-                "game")
+                "game", "game-holds", "diverse-holds")
 
 
 def preset(name) -> Preset:
@@ -187,11 +203,14 @@ def _render_into(fh, p: Preset, videos, custom, progress):
                                             p.size, p.factors, p.spp, p.spp_match)
         r = renderers[name]
         jit, phase = video_jitter(p.jitters, name, split, i)
-        video = r.video(split, i, length, progress=progress, jitter=jit, jitter_phase=phase)
+        video = r.video(split, i, length, progress=progress, jitter=jit, jitter_phase=phase,
+                        hold_from=p.hold_from)
         g = fh.create_group(f"{split}/{name}_{i:02d}")
         g.attrs.update({"scene": name, "effects": json.dumps(list(r.scene.effects)),
                         "length": length, "index": i, "jitter_sequence": jit,
                         "jitter_phase": phase, "near": r.scene.near, "far": r.scene.far})
+        if p.hold_from is not None:
+            g.attrs["hold_from"] = p.hold_from
         write_video(g, video, p.factors, p.spp_match)
 
 

@@ -165,23 +165,38 @@ class VideoRenderer:
             col[refine], _ = self._box(state, refine, subsample_offsets(refined))
         return col.astype(np.float32).reshape(self.H, self.W, 3), len(refine) / col.shape[0]
 
-    def video(self, split, index, length, progress=None, jitter="thesis", jitter_phase=0):
+    def video(self, split, index, length, progress=None, jitter="thesis", jitter_phase=0,
+              hold_from=None):
         """A dict: ``target [T,H,W,3]``, ``reset [T]``, and per factor ``x{f}`` a dict
         of ``color``, ``depth``, ``motion``, ``jitter``; ``exposure [T]`` too with ``hdr``.
         ``jitter`` names the sequence
-        (``jtus.sampling.jitter_sequence``); frame t uses element ``t + jitter_phase``."""
-        states = self.timeline(split, index, length)
+        (``jtus.sampling.jitter_sequence``); frame t uses element ``t + jitter_phase``.
+
+        ``hold_from``: from this frame on the scene stands still at the state of the
+        frame before (camera, objects, lights, time), so only the jitter moves and the
+        motion is zero: a static hold after a moving start. Its target is rendered once
+        and each distinct jitter position's input once."""
+        moving = length if hold_from is None else max(1, min(hold_from, length))
+        states = self.timeline(split, index, moving)
         out = {"target": [], "reset": [], "exposure": [],
                **{f"x{f}": {"color": [], "depth": [], "motion": [], "jitter": []}
                   for f in self.factors}}
         seqs = {f: jitter_sequence(jitter, f) for f in self.factors}
-        for t, st in enumerate(states):
-            out["target"].append(self.target(st))
-            out["reset"].append(t == 0 or st.cut)
+        held = {}  # (factor, jitter) -> input, and the target, of the held state
+        for t in range(length):
+            st, still = states[min(t, moving - 1)], t >= moving
+            if not still:
+                held["target"] = self.target(st)  # the last moving frame's is the held one
+            out["target"].append(held["target"])
+            out["reset"].append(t == 0 or (st.cut and not still))
             out["exposure"].append(st.exposure)
             for f in self.factors:
                 jit = seqs[f][(t + jitter_phase) % len(seqs[f])]
-                c, d, m = self.input(st, f, jit)
+                key = (f, tuple(jit))
+                if still and key not in held:
+                    c, d, m = self.input(st, f, jit)
+                    held[key] = (c, d, np.zeros_like(m))
+                c, d, m = held[key] if still else self.input(st, f, jit)
                 g = out[f"x{f}"]
                 g["color"].append(c)
                 g["depth"].append(d)
@@ -215,23 +230,14 @@ def static_hold(scene: Scene, size, factor, jitter, length, spp=16, split="test"
     holds); its size and spp then apply."""
 
     r = renderer or VideoRenderer(scene, (size, size), (factor,), spp)
-    st = r.timeline(split, 0, 1)[0]
-    target = r.target(st)
-    seq = jitter_sequence(jitter, factor).astype(np.float32)
-    cache, cols = {}, []
-    for t in range(length):
-        j = seq[t % len(seq)]
-        if tuple(j) not in cache:
-            color, depth, _ = r.input(st, factor, j)
-            cache[tuple(j)] = (color, depth)
-        cols.append(cache[tuple(j)])
-    color = np.stack([c for c, _ in cols])[:, None]
-    depth = np.stack([d for _, d in cols])[:, None]
+    v = r.video(split, 0, length, jitter=jitter, hold_from=1)
+    x = v[f"x{factor}"]
     reset = np.zeros((length, 1), bool)
     reset[0] = True
-    jit = np.stack([seq[t % len(seq)] for t in range(length)])[:, None]
-    frame = Frame(color, depth, np.zeros(color.shape[:-1] + (2,), np.float32), jit, reset)
-    return frame, np.broadcast_to(target, (length, 1) + target.shape).astype(np.float32)
+    frame = Frame(x["color"][:, None], x["depth"][:, None],
+                  np.zeros(x["color"].shape[:-1] + (2,), np.float32)[:, None],
+                  x["jitter"][:, None], reset)
+    return frame, v["target"][:, None]
 
 
 __all__ = ["VideoRenderer", "render_video", "static_hold", "subsample_offsets"]
