@@ -237,8 +237,10 @@ def _saved_run(root, path, log, cfg):
 # other trainings of DLCTUS beside the shipped weights: label -> (name, folder); exported
 # as experiments/weights/dlctus-<name>-x<f>, checkpoints in experiments/checkpoints/
 # <folder>-x<f>/. dlctus-diverse: the shipped weights' first stage (the diverse data
-# alone); dlctus-game: that stage fine-tuned on the game data alone
-DLCTUS_RUNS = {"dlctus-diverse": ("diverse", "diverse"), "dlctus-game": ("game", "game")}
+# alone); dlctus-mix: their second stage (game and diverse data half and half);
+# dlctus-game: the first stage fine-tuned on the game data alone
+DLCTUS_RUNS = {"dlctus-diverse": ("diverse", "diverse"), "dlctus-mix": ("mix", "mix"),
+               "dlctus-game": ("game", "game")}
 
 
 def dlctus_run(factor, label="dlctus-game", root=ROOT):

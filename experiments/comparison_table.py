@@ -17,8 +17,9 @@ Families (each video from a fresh state; none trained or tuned on):
 - ``game``: the held-out test levels of ``data/game.h5`` (``--preset game``).
 
 Systems: JAU and TUS (nothing to train), the thesis's released model (``--thesis``), the
-shipped DLCTUS (``jtus/weights/``: trained on the ``diverse`` data, then fine-tuned on
-the game and ``diverse`` data half and half), its first stage alone (``dlctus-diverse``),
+shipped DLCTUS (``jtus/weights/``: trained on the ``diverse`` data, fine-tuned on the
+game and ``diverse`` data half and half, then on both families' static holds), its
+second stage (``dlctus-mix``), its first stage alone (``dlctus-diverse``),
 that stage fine-tuned on the game data alone (``dlctus-game``) and each
 comparison system at its newest training on the ``diverse`` data: the exported weights
 of a finished run (``experiments/weights/<model>-x<f>.msgpack``) or, for a run still in
@@ -91,7 +92,8 @@ def systems(factor, thesis_dir=None):
     with open(os.path.join(ROOT, "jtus", "weights", f"dlctus-x{factor}-training.csv")) as fh:
         rows = list(csv.DictReader(fh))
     out.append(("dlctus", f"dlctus={loading.shipped_path(factor)}",
-                "shipped (diverse, then game and diverse half and half)",
+                "shipped (diverse; game and diverse half and half; both families' static "
+                "holds)",
                 budget(cfg, rows)))
     for label in DLCTUS_RUNS:
         got = dlctus_run(factor, label)

@@ -318,8 +318,8 @@ def test_comparison_table_only_rescores_the_named_systems(tmp_path, monkeypatch)
     assert data["4"]["made_by"]["dlctus"].endswith("--second")
     assert data["4"]["made_by"]["jau"].endswith("--first")
     assert "4x jau: `python experiments/comparison_table.py --first`" in note
-    assert ("| dlctus | shipped (diverse, then game and diverse half and half) | "
-            "30.00 / 0.5000 / 0.10000 |") in table
+    assert ("| dlctus | shipped (diverse; game and diverse half and half; both families' "
+            "static holds) | 30.00 / 0.5000 / 0.10000 |") in table
     with pytest.raises(SystemExit):  # no weights to evaluate
         ct.main(["--factors", "4", *fam, "--only", "nsrr"])
     with pytest.raises(SystemExit):  # the earlier result has no 2x
