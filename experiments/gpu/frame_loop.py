@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import statistics
 import sys
 import time
@@ -22,6 +21,7 @@ import time
 import jax
 
 from jtus.bench.workloads import SIZES, infer_workload
+from jtus import files
 from jtus.timing import hardware_line
 
 
@@ -74,10 +74,8 @@ def main():
                     print(json.dumps(rec), flush=True)
                     report["rows"].append(rec)
                     if args.out:  # row by row: a run stopped by its time limit keeps its rows
-                        os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
-                        with open(args.out + ".tmp", "w") as fh:
+                        with files.atomic_path(args.out) as tmp, open(tmp, "w") as fh:
                             json.dump(report, fh, indent=1)
-                        os.replace(args.out + ".tmp", args.out)
 
 
 if __name__ == "__main__":

@@ -24,6 +24,7 @@ import tempfile
 import jax
 
 from jtus.bench.workloads import SIZES, infer_workload, train_workload
+from jtus import files
 from jtus.timing import hardware_line
 
 
@@ -102,10 +103,8 @@ def main():
                       f"{r['name'][:80]}")
         report["workloads"].append(rec)
         if args.out:
-            os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
-            with open(args.out + ".tmp", "w") as fh:
+            with files.atomic_path(args.out) as tmp, open(tmp, "w") as fh:
                 json.dump(report, fh, indent=1)
-            os.replace(args.out + ".tmp", args.out)
 
 
 if __name__ == "__main__":

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import statistics
 import sys
 import time
@@ -24,6 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jtus import files
 from jtus.models import dlctus, kernels
 from jtus.timing import hardware_line
 
@@ -88,10 +88,8 @@ def run(args, save):
 
 
 def _save(report, out):
-    os.makedirs(os.path.dirname(out) or ".", exist_ok=True)
-    with open(out + ".tmp", "w") as f:
+    with files.atomic_path(out) as tmp, open(tmp, "w") as f:
         json.dump(report, f, indent=1)
-    os.replace(out + ".tmp", out)
 
 
 def main():
