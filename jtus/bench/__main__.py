@@ -24,8 +24,8 @@ import sys
 from jtus import cli, files, models, recipe, sampling
 from jtus import config as run_config
 from jtus.bench.report import markdown
-from jtus.models import dlctus
 from jtus.bench.workloads import SIZES, bench_infer, bench_train, peaks
+from jtus.models import dlctus
 from jtus.timing import hardware
 
 
