@@ -161,6 +161,14 @@ PRESETS["game-holds"] = dataclasses.replace(
 PRESETS["holds-mix"] = dataclasses.replace(PRESETS["game-holds"],
                                            mix_dataset="data/diverse-holds.h5",
                                            mix_fraction=0.5)
+# the same with 64 still frames (data presets game-long-holds and diverse-long-holds):
+# 80-frame sequences as five TBPTT windows of 16, so the state after four jitter cycles
+# of stillness gets a gradient
+PRESETS["long-holds-mix"] = dataclasses.replace(PRESETS["holds-mix"],
+                                                dataset="data/game-long-holds.h5",
+                                                data_preset="game-long-holds",
+                                                mix_dataset="data/diverse-long-holds.h5",
+                                                seq_len=80)
 PRESETS["hdr-tiny"] = dataclasses.replace(PRESETS["tiny"], dataset="data/hdr-tiny.h5",
                                           data_preset="hdr-tiny",
                                           model_overrides=(("hdr", True),))

@@ -69,18 +69,22 @@ def test_dlctus_dilation_reprojects_with_the_dilated_motion():
 
 
 @pytest.mark.parametrize("warp", ["bicubic", "bicubic9", "bicubic5"])
-def test_dlctus_reads_its_history_with_its_warp_and_keys_a(warp):
+def test_dlctus_reads_its_history_with_its_warp_and_keys_a(x64, warp):
     """The history is read at ``P + f * mv`` with the configured warp and Keys ``a``
     (thesis sec. 5.5.1; a=-0.5 is the thesis's Bicubic5 before its change), the
     jitter-aligned input where that falls outside: against ``sampling.sample`` (checked
-    against PyTorch's grid_sample). Catches: ``warp_a`` dropped on the way to the plan or
-    the read (PyTorch's -0.75 then)."""
+    against PyTorch's grid_sample); for ``bicubic`` at that position summed in float64,
+    since DLCTUS keeps the pixel and its displacement apart there
+    (``sampling.reproject_plan``; the 9- and 5-fetch reads take the float32 sum). Catches:
+    ``warp_a`` dropped on the way to the plan or the read (PyTorch's -0.75 then)."""
     frames, _ = seqdata.to_jax(seqdata.sequence(T=2, B=2, max_motion=2.0))
     frame = seqdata.at(frames, 1)
     history = jnp.asarray(np.random.default_rng(8).uniform(size=(2, 32, 32, 4)), jnp.float32)
     config = dlctus.Config(factor=4, warp=warp, warp_a=-0.5)
     got = _dlctus_hist(config, frame, history)
-    xy = sampling.reproject_coords(frame.motion, 4)
+    d = 4 * sampling.upsample(frame.motion, 4)   # float32, as the model computes it
+    xy = (sampling.pixel_grid(2, 32, 32, jnp.float64) + d.astype(jnp.float64)
+          if warp == "bicubic" else sampling.reproject_coords(frame.motion, 4))
     read, inside = sampling.sample(history, xy, warp, a=-0.5, return_mask=True)
     jau = sampling.jitter_aligned_upsample(
         jnp.concatenate([frame.color, jnp.ones_like(frame.depth)], -1), frame.jitter, 4)

@@ -240,9 +240,8 @@ def prepare_frame(frame: Frame, config: Config = Config()) -> Prepared:
         jau = _jau(config, color, jitter)
     with jax.named_scope("reprojection"):
         mv = sampling.dilate_motion(motion, depth) if config.dilation else motion
-        xy = sampling.reproject_coords(mv, f)
-        plan = sampling.warp_plan(xy, *jau.shape[1:3], method=config.warp, a=config.warp_a,
-                                  dtype=jau.dtype)
+        plan = sampling.reproject_plan(mv, f, method=config.warp, a=config.warp_a,
+                                       dtype=jau.dtype)
     return Prepared(lr, jitter, jau, plan, frame.reset)
 
 

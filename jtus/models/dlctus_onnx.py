@@ -82,14 +82,15 @@ def _size(g, x, axis, dtype=np.float32):
     return g("Cast", s, to=11 if dtype == np.float64 else 1)
 
 
-def _pixel_centres(g, ref):
+def _pixel_centres(g, ref, dtype=np.float32):
     """``[1,2,H,W]``: the centres ``i + 0.5`` (x, then y) of ``ref``'s ``[B,C,H,W]``
     pixels."""
     axes = []
     for axis in (3, 2):  # x along the width, then y
         n = g("Shape", ref, start=axis, end=axis + 1)
         r = g("Range", g.const(0, np.int64), g("Squeeze", n), g.const(1, np.int64))
-        axes.append(g("Add", g("Cast", r, to=1), g.const(0.5)))
+        axes.append(g("Add", g("Cast", r, to=11 if dtype == np.float64 else 1),
+                      g.const(0.5, dtype)))
     x, y = axes
     one = g.const([1], np.int64)
     shape = g("Concat", one, one, g("Shape", ref, start=2, end=4), axis=0)
@@ -251,20 +252,23 @@ def _reproject(g, config, f, history, jau):
     if not config.accumulation:
         history = g("Concat", g.slice(history, 0, 3, 1), g.slice(jau, 3, 4, 1), axis=1)
     mv = _upsample(g, g("Transpose", "motion", perm=_NCHW), f)     # [B,2,H,W]
-    xy = g("Add", _pixel_centres(g, history), g("Mul", mv, g.const(float(f))))
+    d = g("Cast", g("Mul", mv, g.const(float(f))), to=11)           # the displacement
+    # The position in float64: the pixel centre plus jtus's float32 displacement, exact
+    # (jtus keeps the two apart, sampling.reproject_plan); GridSample takes normalized
+    # coordinates, and in float32 their rounding alone would move a read at x ~ 1920 by
+    # up to 1e-4 pixels, 1e-4 in value on a noisy image.
+    xy = g("Add", _pixel_centres(g, history, np.float64), d)
     mode = "cubic" if config.warp == "bicubic" else "linear"
-    # The read in float64: GridSample takes normalized coordinates, and in float32 their
-    # rounding moves a read at x ~ 1920 by up to 1e-4 pixels, 1e-4 in value on a noisy
-    # image; in float64 it reads jtus's float32 coordinates exactly.
-    grid = _normalized64(g, g("Transpose", g("Cast", xy, to=11), perm=_NHWC), history)
+    grid = _normalized64(g, g("Transpose", xy, perm=_NHWC), history)
     rep = g("Cast", g("GridSample", g("Cast", history, to=11), grid, mode=mode,
                       padding_mode="border", align_corners=0), to=1)
-    # sampling.inside_mask: 0 <= x <= W and 0 <= y <= H; read there unless a reset
+    # sampling.offset_plan: 0 <= x <= W and 0 <= y <= H, exactly; read there unless a
+    # reset
     keep = g("Not", g("Reshape", "reset", g.const([-1, 1, 1, 1], np.int64)))
     for c, axis in ((0, 3), (1, 2)):
         v = g.slice(xy, c, c + 1, 1)                              # [B,1,H,W]
-        keep = g("And", keep, g("And", g("GreaterOrEqual", v, g.const(0.0)),
-                                g("LessOrEqual", v, _size(g, history, axis))))
+        keep = g("And", keep, g("And", g("GreaterOrEqual", v, g.const(0.0, np.float64)),
+                                g("LessOrEqual", v, _size(g, history, axis, np.float64))))
     return g("Where", keep, rep, jau)
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from jtus.sampling.warp import pixel_grid, sample
+from jtus.sampling.warp import PYTORCH_A, WarpPlan, offset_plan, pixel_grid, sample
 
 
 def _check_factor(factor):
@@ -207,3 +207,19 @@ def reproject_coords(motion, factor):
     b, h, w, _ = motion.shape
     dt = jnp.promote_types(motion.dtype, jnp.float32)
     return pixel_grid(b, h * factor, w * factor, dt) + factor * upsample(motion, factor)
+
+
+def reproject_plan(motion, factor, method="bilinear", a=PYTORCH_A,
+                   dtype=jnp.float32) -> WarpPlan:
+    """``warp_plan(reproject_coords(motion, factor), f*h, f*w, method, a, dtype)`` with
+    the position kept as the HR pixel and its displacement ``f * upsample(motion)``
+    (``offset_plan``): the read a recurrent model's history takes, at the position
+    ``reproject_coords`` names, without the float32 rounding of the pixel centre plus
+    the displacement (1.2e-4 px at 1080p)."""
+    b, h, w, _ = motion.shape
+    dt = jnp.promote_types(motion.dtype, jnp.float32)
+    hh, ww = h * factor, w * factor
+    index = jnp.stack(jnp.meshgrid(jnp.arange(ww, dtype=jnp.int32),
+                                   jnp.arange(hh, dtype=jnp.int32), indexing="xy"), -1)
+    d = factor * upsample(motion.astype(dt), factor)
+    return offset_plan(jnp.broadcast_to(index, (b, hh, ww, 2)), d, hh, ww, method, a, dtype)

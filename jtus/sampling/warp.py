@@ -191,6 +191,12 @@ def warp_plan(xy, height, width, method="bilinear", a=PYTORCH_A,
         one = jnp.where(jnp.isnan(xy).any(-1, keepdims=True), jnp.nan, 1).astype(dtype)
         return WarpPlan(i0[..., 1], i0[..., 0], one, one, None, inside)
     i0, t = _split(xy)
+    return _separable_plan(i0, t, inside, method, a, dtype)
+
+
+def _separable_plan(i0, t, inside, method, a, dtype):
+    """The plan of a separable method from the index of the pixel centre at or left of
+    (above) the position, ``i0 [B,...,2]`` int32, and the fractional part ``t``."""
     if method == "bilinear":
         wx, wy = (_linear_weights(t[..., k:k + 1].astype(dtype)) for k in (0, 1))
         return WarpPlan(i0[..., 1], i0[..., 0], wy, wx, None, inside)
@@ -201,6 +207,34 @@ def warp_plan(xy, height, width, method="bilinear", a=PYTORCH_A,
     wx, wy = (jnp.concatenate(keys_weights(t[..., k:k + 1].astype(dtype), a), -1)
               for k in (0, 1))
     return WarpPlan(i0[..., 1] - 1, i0[..., 0] - 1, wy, wx, None, inside)
+
+
+def offset_plan(index, d, height, width, method="bilinear", a=PYTORCH_A,
+                dtype=jnp.float32) -> WarpPlan:
+    """``warp_plan(index + 0.5 + d, ...)`` for a read displaced by ``d [B,Ho,Wo,2]``
+    pixels (floating) from the centre of pixel ``index [B,Ho,Wo,2]`` (int32, x then y),
+    without rounding that sum: the tap index is ``index + floor(d)`` and the fractional
+    part ``d - floor(d)``, both exact, and ``inside`` compares ``d`` with the exact
+    distances to the borders. In float32 the sum itself is rounded to the spacing of
+    its magnitude (1.2e-4 px at x ~ 1900), which moves a 1080p read by up to 6e-5 px.
+    The non-separable methods (``nearest``, ``bicubic9``, ``bicubic5``) read at the
+    summed coordinates."""
+    if method not in METHODS:
+        raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
+    if index.shape != d.shape or d.shape[-1] != 2:
+        raise ValueError(f"index, d: expected equal shapes [B,Ho,Wo,2], got {index.shape} "
+                         f"and {d.shape}")
+    if not jnp.issubdtype(d.dtype, jnp.floating):
+        d = d.astype(jnp.float32)
+    centre = index.astype(d.dtype) + 0.5
+    if method in ("nearest", "bicubic9", "bicubic5"):
+        return warp_plan(centre + d, height, width, method, a, dtype)
+    d = jnp.clip(d, -_FAR, _FAR)
+    whole = jnp.floor(d)
+    i0 = index + whole.astype(jnp.int32)
+    size = jnp.asarray([width, height], d.dtype)
+    inside = ((d >= -centre) & (d <= size - centre)).all(-1, keepdims=True)
+    return _separable_plan(i0, d - whole, inside, method, a, dtype)
 
 
 def warp_read(image, p: WarpPlan, method="bilinear", a=PYTORCH_A):

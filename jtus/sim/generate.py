@@ -137,6 +137,15 @@ def _presets():
         "diverse-holds": Preset((192, 192), (2, 4), 16, 1, {
             "train": (_random("train", 200), 1, 48), "val": (_random("val", 8), 1, 48),
             "test": ((), 1, 1)}, VARIETY, hold_from=16),
+        # longer holds of both families: 16 moving frames, then 64 still (four cycles of
+        # a 16-position sequence), for a steady state that lasts past two cycles
+        "game-long-holds": Preset((128, 128), (2, 4), 16, 1, {
+            "train": (_levels(game.TRAIN_LEVELS), 1, 80),
+            "val": (_levels(game.VAL_LEVELS), 1, 80), "test": ((), 1, 1)}, VARIETY,
+            hold_from=16),
+        "diverse-long-holds": Preset((192, 192), (2, 4), 16, 1, {
+            "train": (_random("train", 200), 1, 80), "val": (_random("val", 8), 1, 80),
+            "test": ((), 1, 1)}, VARIETY, hold_from=16),
     }
 
 
@@ -164,7 +173,7 @@ _HDR = ("hdr", "specular", "emissive_flicker")
 
 
 PRESET_NAMES = ("tiny", "default", "long", "paper", "diverse", "diverse-tiny", "hdr", "hdr-tiny",
-                "game", "game-holds", "diverse-holds")
+                "game", "game-holds", "diverse-holds", "game-long-holds", "diverse-long-holds")
 
 
 def preset(name) -> Preset:
