@@ -125,29 +125,28 @@ def _presets():
             "train": (_levels(game.TRAIN_LEVELS), 4, 16),
             "val": (_levels(game.VAL_LEVELS), 2, 16),
             "test": (_levels(game.TEST_LEVELS), 2, 24)}, VARIETY),
-        # static holds of the game levels: 16 frames of the level's camera path, then 32
-        # where only the jitter moves (two cycles of a 16-position sequence), to train
-        # and check a model's steady state; no test split (the test levels' holds are
-        # experiments/static_hold.py's)
-        "game-holds": Preset((128, 128), (2, 4), 16, 1, {
-            "train": (_levels(game.TRAIN_LEVELS), 1, 48),
-            "val": (_levels(game.VAL_LEVELS), 1, 48), "test": ((), 1, 1)}, VARIETY,
-            hold_from=16),
-        # the same holds of the randomized scenes (the diverse preset's seeds)
-        "diverse-holds": Preset((192, 192), (2, 4), 16, 1, {
-            "train": (_random("train", 200), 1, 48), "val": (_random("val", 8), 1, 48),
-            "test": ((), 1, 1)}, VARIETY, hold_from=16),
-        # longer holds of both families: 16 moving frames, then 64 still (four cycles of
-        # a 16-position sequence), for a steady state that lasts past two cycles
-        "game-long-holds": Preset((128, 128), (2, 4), 16, 1, {
-            "train": (_levels(game.TRAIN_LEVELS), 1, 80),
-            "val": (_levels(game.VAL_LEVELS), 1, 80), "test": ((), 1, 1)}, VARIETY,
-            hold_from=16),
-        "diverse-long-holds": Preset((192, 192), (2, 4), 16, 1, {
-            "train": (_random("train", 200), 1, 80), "val": (_random("val", 8), 1, 80),
-            "test": ((), 1, 1)}, VARIETY, hold_from=16),
+        **_hold_presets(),
     }
 
+
+def _hold_presets():
+    """Static holds (``hold_from``), to train and check a model's steady state: each
+    game level's camera path (``game-*``) or randomized scene's (``diverse-*``, the
+    diverse preset's seeds) for 16 frames, then 32 still frames where only the jitter
+    moves (two cycles of a 16-position sequence; ``*-holds``) or 64 (four cycles;
+    ``*-long-holds``). No test split: the test levels' holds are
+    experiments/static_hold.py's."""
+    out = {}
+    for name, frames in (("holds", 48), ("long-holds", 80)):
+        out[f"game-{name}"] = Preset((128, 128), (2, 4), 16, 1, {
+            "train": (_levels(game.TRAIN_LEVELS), 1, frames),
+            "val": (_levels(game.VAL_LEVELS), 1, frames), "test": ((), 1, 1)}, VARIETY,
+            hold_from=16)
+        out[f"diverse-{name}"] = Preset((192, 192), (2, 4), 16, 1, {
+            "train": (_random("train", 200), 1, frames),
+            "val": (_random("val", 8), 1, frames), "test": ((), 1, 1)}, VARIETY,
+            hold_from=16)
+    return out
 
 def _levels(maps):
     return tuple(game.PREFIX + m for m in maps)
