@@ -100,8 +100,10 @@ def systems(factor, thesis_dir=None):
         if got is None:
             continue
         path, rows, cfg = got
-        status = (f"{cfg['data_preset']} preset" + (
-            f", from {cfg['init_from']}" if cfg.get("init_from") else "")
+        mix = cfg.get("mix_dataset")
+        data = (f"{cfg['data_preset']} and {os.path.basename(mix).removesuffix('.h5')} "
+                "half and half" if mix else f"{cfg['data_preset']} preset")
+        status = (data + (f", from {cfg['init_from']}" if cfg.get("init_from") else "")
             if path.startswith("experiments/weights/") else
             f"epoch {len(rows)} of {cfg['epochs']} (unfinished)")
         out.append((label, f"{label}={os.path.join(ROOT, path)}", status, budget(cfg, rows)))
