@@ -76,21 +76,19 @@ class _Graph:
         return out
 
 
-def _size(g, x, axis, dtype=np.float32):
-    """``x.shape[axis]`` as a float tensor ``[1]``."""
-    s = g("Shape", x, start=axis, end=axis + 1)
-    return g("Cast", s, to=11 if dtype == np.float64 else 1)
+def _size64(g, x, axis):
+    """``x.shape[axis]`` as a float64 tensor ``[1]``."""
+    return g("Cast", g("Shape", x, start=axis, end=axis + 1), to=11)
 
 
-def _pixel_centres(g, ref, dtype=np.float32):
-    """``[1,2,H,W]``: the centres ``i + 0.5`` (x, then y) of ``ref``'s ``[B,C,H,W]``
-    pixels."""
+def _pixel_centres64(g, ref):
+    """``[1,2,H,W]`` float64: the centres ``i + 0.5`` (x, then y) of ``ref``'s
+    ``[B,C,H,W]`` pixels."""
     axes = []
     for axis in (3, 2):  # x along the width, then y
         n = g("Shape", ref, start=axis, end=axis + 1)
         r = g("Range", g.const(0, np.int64), g("Squeeze", n), g.const(1, np.int64))
-        axes.append(g("Add", g("Cast", r, to=11 if dtype == np.float64 else 1),
-                      g.const(0.5, dtype)))
+        axes.append(g("Add", g("Cast", r, to=11), g.const(0.5, np.float64)))
     x, y = axes
     one = g.const([1], np.int64)
     shape = g("Concat", one, one, g("Shape", ref, start=2, end=4), axis=0)
@@ -102,7 +100,7 @@ def _pixel_centres(g, ref, dtype=np.float32):
 def _normalized64(g, xy, image):
     """Pixel coordinates ``[B,Ho,Wo,2]`` (float64) in ``image`` ``[B,C,H,W]`` ->
     GridSample's grid ``xy * 2 / (W, H) - 1`` (``align_corners=0``), in float64."""
-    size = g("Concat", _size(g, image, 3, np.float64), _size(g, image, 2, np.float64), axis=0)
+    size = g("Concat", _size64(g, image, 3), _size64(g, image, 2), axis=0)
     return g("Sub", g("Mul", xy, g("Div", g.const(2.0, np.float64), size)),
              g.const(1.0, np.float64))
 
@@ -257,7 +255,7 @@ def _reproject(g, config, f, history, jau):
     # (jtus keeps the two apart, sampling.reproject_plan); GridSample takes normalized
     # coordinates, and in float32 their rounding alone would move a read at x ~ 1920 by
     # up to 1e-4 pixels, 1e-4 in value on a noisy image.
-    xy = g("Add", _pixel_centres(g, history, np.float64), d)
+    xy = g("Add", _pixel_centres64(g, history), d)
     mode = "cubic" if config.warp == "bicubic" else "linear"
     grid = _normalized64(g, g("Transpose", xy, perm=_NHWC), history)
     rep = g("Cast", g("GridSample", g("Cast", history, to=11), grid, mode=mode,
@@ -268,7 +266,7 @@ def _reproject(g, config, f, history, jau):
     for c, axis in ((0, 3), (1, 2)):
         v = g.slice(xy, c, c + 1, 1)                              # [B,1,H,W]
         keep = g("And", keep, g("And", g("GreaterOrEqual", v, g.const(0.0, np.float64)),
-                                g("LessOrEqual", v, _size(g, history, axis, np.float64))))
+                                g("LessOrEqual", v, _size64(g, history, axis))))
     return g("Where", keep, rep, jau)
 
 

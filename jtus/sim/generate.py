@@ -148,6 +148,7 @@ def _hold_presets():
             hold_from=16)
     return out
 
+
 def _levels(maps):
     return tuple(game.PREFIX + m for m in maps)
 

@@ -182,12 +182,12 @@ class VideoRenderer:
                **{f"x{f}": {"color": [], "depth": [], "motion": [], "jitter": []}
                   for f in self.factors}}
         seqs = {f: jitter_sequence(jitter, f) for f in self.factors}
-        held = {}  # (factor, jitter) -> input, and the target, of the held state
+        held = {}  # (factor, jitter) -> the held state's input
         for t in range(length):
             st, still = states[min(t, moving - 1)], t >= moving
             if not still:
-                held["target"] = self.target(st)  # the last moving frame's is the held one
-            out["target"].append(held["target"])
+                target = self.target(st)  # the last moving frame's is the held one
+            out["target"].append(target)
             out["reset"].append(t == 0 or (st.cut and not still))
             out["exposure"].append(st.exposure)
             for f in self.factors:
