@@ -380,3 +380,22 @@ def test_candidate_scores_table_marks_validation_and_test_columns():
     assert lines[0] == ("| model | diverse val (validation) | game val (validation) | "
                         "random (test) |")
     assert lines[2:] == ["| a | 30.00 | 40.00 | 28.12 |", "| b | 30.50 | 39.00 | 28.00 |"]
+
+
+def test_inference_bound_splits_a_frame_into_network_floor_and_rest():
+    """experiments/inference_bound.py: the target is PyTorch's time over the ratio, the
+    network's floor its FLOPs at the measured convolution peak, the rest the frame minus
+    the network; rows without a PyTorch time or of other models are skipped."""
+    ib = seqdata.load_script("inference_bound")
+    report = {"peak": {"conv_dlctus_gflops": 100.0}, "infer": [
+        {"model": "dlctus", "size": "8x8", "factor": 4, "gflop": 5.0, "ms": 90.0,
+         "network_ms": 60.0, "torch_ms": 120.0},
+        {"model": "dlctus", "size": "8x8", "factor": 2, "gflop": 5.0, "ms": 90.0,
+         "network_ms": 60.0, "torch_ms": None},
+        {"model": "kpn", "size": "8x8", "factor": 4, "gflop": 5.0, "ms": 9.0,
+         "network_ms": 6.0, "torch_ms": 12.0}]}
+    (row,) = ib.bounds(report, 1.5)
+    assert row["target_ms"] == pytest.approx(80.0)
+    assert row["network_floor_ms"] == pytest.approx(50.0)
+    assert row["rest_ms"] == pytest.approx(30.0)
+    assert row["at_peak_ms"] == pytest.approx(80.0)
