@@ -171,7 +171,7 @@ PRESETS["long-holds-mix"] = dataclasses.replace(PRESETS["holds-mix"],
                                                 seq_len=80)
 # the same sequences as one BPTT window of 80 frames (one Adam step per sequence, 400
 # in all), so the loss on the last still frames reaches back through the whole hold; the
-# shipped weights' fourth stage at 4x, from the third (docs/weights.md)
+# shipped weights' fourth stage at both factors, from the third (docs/weights.md)
 PRESETS["long-holds-bptt"] = dataclasses.replace(PRESETS["long-holds-mix"], k1=80, k2=80)
 PRESETS["hdr-tiny"] = dataclasses.replace(PRESETS["tiny"], dataset="data/hdr-tiny.h5",
                                           data_preset="hdr-tiny",
