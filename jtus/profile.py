@@ -15,7 +15,11 @@ says which JAX code made it. Ops are then summed by
   own bookkeeping: stacking residuals, copies, loop control);
 - **pass**: ``forward`` or ``backward`` (ops made by transposition);
 - **kind**: convolution, matmul, gather, scatter, concatenate, copy/slice, elementwise
-  fusion, reduction, other.
+  fusion, reduction, other, and two kinds of a scan's bookkeeping: *fill* (materializing
+  a broadcast, and copies of one: JAX lowers a scan's stacked outputs on the CPU as
+  buffers filled with zeros, which XLA:CPU makes by copying one broadcast into each)
+  and *stacking* (a dynamic-update-slice in a loop body writing one frame's slice of a
+  stacked buffer: the residuals the backward pass reads, or the scan's outputs).
 
 Each op's time is its span on the thread that ran it: the op's wall time, during which
 its own worker threads (YNNPACK, Eigen) may help it. XLA:CPU mostly runs one op at a
@@ -42,22 +46,26 @@ from jtus import bench, cli, models, sampling, timing
 STAGES = ("input_upsampling", "reprojection", "network", "output", "loss", "optimizer")
 _INSTR = re.compile(r"\s*(?:ROOT )?%?([\w.\-]+) = .*? ([a-z][\w\-]*)\(")
 _OPNAME = re.compile(r'op_name="([^"]+)"')
+_OPERAND = re.compile(r"%?([\w.\-]+)")
 _CONTAINERS = {"while", "call", "conditional"}
 
 
 def hlo_ops(text):
-    """``{instruction name: (opcode, op_name metadata)}`` from a compiled module's text."""
+    """``{instruction name: (opcode, op_name metadata, first operand's name)}`` from a
+    compiled module's text."""
     out = {}
     for line in text.splitlines():
         m = _INSTR.match(line)
         if m:
             on = _OPNAME.search(line)
-            out[m.group(1)] = (m.group(2), on.group(1) if on else "")
+            operand = _OPERAND.match(line, m.end())
+            out[m.group(1)] = (m.group(2), on.group(1) if on else "",
+                               operand.group(1) if operand else "")
     return out
 
 
-def classify(name, opcode, op_name):
-    """(stage, pass, kind) of one op."""
+def classify(name, opcode, op_name, operand=""):
+    """(stage, pass, kind) of one op; ``operand``: the name of its first operand."""
     stage = next((s for s in STAGES if f"/{s}/" in op_name or op_name.endswith("/" + s)),
                  "other")
     pass_ = "backward" if "transpose(" in op_name else "forward"
@@ -65,6 +73,11 @@ def classify(name, opcode, op_name):
         kind = "convolution"
     elif opcode == "dot" or op_name.endswith("/dot_general"):
         kind = "matmul"
+    elif name.startswith("wrapped_broadcast") or (
+            opcode == "copy" and operand.startswith(("wrapped_broadcast", "broadcast"))):
+        kind = "fill"
+    elif "/while/body/" in op_name and op_name.endswith("/dynamic_update_slice"):
+        kind = "stacking"
     elif opcode in ("gather", "scatter", "concatenate"):
         kind = opcode
     elif op_name.endswith("/gather") or "gather" in name:
@@ -117,8 +130,8 @@ def summarize(totals, ops, steps):
     by = {k: collections.Counter() for k in ("stage", "pass", "kind", "stage_pass", "stage_kind")}
     top = []
     for name, ns in totals.items():
-        opcode, op_name = ops[name]
-        stage, pass_, kind = classify(name, opcode, op_name)
+        stage, pass_, kind = classify(name, *ops[name])
+        op_name = ops[name][1]
         ms = ns / 1e6 / steps
         by["stage"][stage] += ms
         by["pass"][pass_] += ms

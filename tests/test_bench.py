@@ -115,6 +115,28 @@ def test_profile_classifies_ops_by_their_jax_origin():
     assert classify("copy.7", "copy", "") == ("other", "forward", "copy/slice")
 
 
+def test_profile_names_a_scans_buffer_fills_and_residual_writes():
+    """A scan's stacked outputs start as buffers filled from a broadcast (a copy of it per
+    buffer) and are written one frame at a time by dynamic-update-slices in the loop
+    body: the profile files these as ``fill`` and ``stacking``, not as compute."""
+    from jtus.profile import classify, hlo_ops
+
+    text = ('  %wrapped_broadcast.27 = f32[5,4,34,34,32]{4,3,2,1,0} fusion(%constant.1), '
+            'kind=kLoop, calls=%wrapped_broadcast_computation.27\n'
+            '  %copy.12 = f32[5,4,34,34,32]{4,3,2,1,0} copy(%wrapped_broadcast.27)\n'
+            '  %copy.13 = f32[4,32]{1,0} copy(%transpose.2), metadata={op_name="jit(f)/x"}\n'
+            '  %bitcast_dynamic-update-slice_fusion.5 = f32[5,4,34,34,32]{4,3,2,1,0} '
+            'fusion(%copy.12, %p.1, %i.2), kind=kLoop, metadata={op_name="jit(train_step)/'
+            'jvp()/while/body/jit(dynamic_update_index_in_dim)/dynamic_update_slice"}\n')
+    ops = hlo_ops(text)
+    assert ops["copy.12"] == ("copy", "", "wrapped_broadcast.27")
+    assert classify("wrapped_broadcast.27", *ops["wrapped_broadcast.27"])[2] == "fill"
+    assert classify("copy.12", *ops["copy.12"])[2] == "fill"
+    assert classify("copy.13", *ops["copy.13"])[2] == "copy/slice"
+    name = "bitcast_dynamic-update-slice_fusion.5"
+    assert classify(name, *ops[name]) == ("other", "forward", "stacking")
+
+
 @pytest.mark.long
 def test_bench_train_preset_sets_the_recipe_workload(capsys):
     from jtus import config, recipe

@@ -399,3 +399,17 @@ def test_inference_bound_splits_a_frame_into_network_floor_and_rest():
     assert row["network_floor_ms"] == pytest.approx(50.0)
     assert row["rest_ms"] == pytest.approx(30.0)
     assert row["at_peak_ms"] == pytest.approx(80.0)
+
+
+def test_scan_residuals_sums_the_buffers_the_scan_stacks():
+    """experiments/scan_residuals.py reads ``print_saved_residuals``'s lines: bytes from
+    dtype and shape, and only the scan's outputs counted as stacked over the frames."""
+    sr = seqdata.load_script("scan_residuals")
+    text = ("f32[3,3,32,32] from the argument p\n"
+            "bool[8,4,32,32,32] output of scan from rollout.py:160:11 (_segment)\n"
+            "f32[8,4,34,34,32] output of scan from rollout.py:160:11 (_segment)\n"
+            "f32[] from a literal\n")
+    rows = sr.parse(text)
+    assert [r[2] for r in rows] == [4 * 9 * 32 * 32, 8 * 4 * 32 ** 3, 4 * 8 * 4 * 34 * 34 * 32, 4]
+    assert [r[1] for r in sr.stacked(rows)] == [(8, 4, 32, 32, 32), (8, 4, 34, 34, 32)]
+    assert "2 buffers" in sr.table(rows, 8)

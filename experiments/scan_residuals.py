@@ -1,0 +1,115 @@
+"""What a DLCTUS training window keeps for its backward pass, and how much of it the scan
+stacks over the frames.
+
+JAX's autodiff of ``lax.scan`` writes each frame's residuals into buffers stacked over
+the frames (``[T, ...]``). On XLA:CPU those buffers are first filled from a broadcast of
+zeros and then written one frame at a time; ``python -m jtus.profile`` files the two as
+the ``fill`` and ``stacking`` kinds. This script lists the residuals of one window of the
+bench's training step (random frames, the window's loss on every frame) with
+``jax.ad_checkpoint.print_saved_residuals`` and sums the stacked ones.
+
+    python experiments/scan_residuals.py                # 2x, crop 128, batch 4, 8 frames
+
+Writes ``docs/results/scan-bookkeeping/result.{md,json}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import contextlib
+import io
+import re
+
+import jax
+from jax.ad_checkpoint import print_saved_residuals
+import jax.numpy as jnp
+import numpy as np
+from common import write
+
+from jtus import losses, models, rollout
+from jtus.bench.workloads import random_frame
+
+_LINE = re.compile(r"(\w+)\[([\d,]*)\]\s*(.*)")
+ITEMSIZE = {"bool": 1, "i8": 1, "u8": 1, "f16": 2, "bf16": 2, "f32": 4, "i32": 4, "u32": 4,
+            "f64": 8, "i64": 8}
+
+
+def parse(text):
+    """``print_saved_residuals`` output -> one ``(dtype, shape, bytes, source)`` per line;
+    ``source`` is the text after the shape (``output of scan from ...`` for a stacked one)."""
+    rows = []
+    for line in text.splitlines():
+        m = _LINE.match(line.strip())
+        if not m:
+            continue
+        dtype, dims, source = m.groups()
+        shape = tuple(int(d) for d in dims.split(",") if d)
+        rows.append((dtype, shape, ITEMSIZE[dtype] * int(np.prod(shape, dtype=np.int64)),
+                     source))
+    return rows
+
+
+def stacked(rows):
+    """The residuals the scan stacks over the frames."""
+    return [r for r in rows if r[3].startswith("output of scan")]
+
+
+def residuals(factor, crop, batch, seq):
+    model = models.build("dlctus", factor)
+    params = model.init(jax.random.PRNGKey(0))
+    h = crop // factor
+    frames = [random_frame(h, h, batch, seed=t) for t in range(seq)]
+    frames = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *frames)
+    frames = frames._replace(reset=jnp.zeros((seq, batch), bool).at[0].set(True))
+    targets = jnp.asarray(np.random.default_rng(9).uniform(size=(seq, batch, crop, crop, 3)),
+                          jnp.float32)
+    loss_fn = losses.make(models.spec("dlctus").loss, factor)
+    advance, prepare = rollout.parts(model)
+
+    def loss(p):
+        carry = rollout.start(rollout.first_state(model, frames), targets[0])
+        return rollout.window_loss(advance, loss_fn, p, carry, frames, targets,
+                                   loss_frames=seq, prepare=prepare)[0]
+
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        print_saved_residuals(loss, params)
+    return parse(out.getvalue())
+
+
+def table(rows, seq):
+    groups = collections.Counter()
+    for dtype, shape, size, _ in stacked(rows):
+        groups[f"{dtype}[{','.join(map(str, shape))}]"] += size
+    lines = ["| stacked residual (frames first) | count | MiB |", "| --- | --- | --- |"]
+    counts = collections.Counter(f"{d}[{','.join(map(str, s))}]" for d, s, _, _ in stacked(rows))
+    for k, size in groups.most_common():
+        lines.append(f"| {k} | {counts[k]} | {size / 2 ** 20:.1f} |")
+    total = sum(r[2] for r in stacked(rows))
+    lines += ["", f"Stacked over the {seq} frames: {total / 2 ** 20:.1f} MiB "
+              f"({total / seq / 2 ** 20:.2f} MiB per frame), in {len(stacked(rows))} buffers; "
+              f"other residuals (parameters, the prepared frames): "
+              f"{sum(r[2] for r in rows) / 2 ** 20 - total / 2 ** 20:.1f} MiB."]
+    return "\n".join(lines)
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--factor", type=int, default=2, choices=(2, 4))
+    p.add_argument("--crop", type=int, default=128)
+    p.add_argument("--batch", type=int, default=4)
+    p.add_argument("--seq", type=int, default=8)
+    p.add_argument("--name", default="scan-bookkeeping")
+    args = p.parse_args()
+    rows = residuals(args.factor, args.crop, args.batch, args.seq)
+    md = (f"DLCTUS {args.factor}x training window: crop {args.crop}, batch {args.batch}, "
+          f"{args.seq} frames, the loss on every frame.\n\n" + table(rows, args.seq))
+    total = sum(r[2] for r in stacked(rows))
+    write(args.name, md, {"stacked_bytes": total, "buffers": len(stacked(rows)),
+                          "rows": [list(r) for r in rows]})
+
+
+if __name__ == "__main__":
+    main()
