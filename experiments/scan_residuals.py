@@ -55,8 +55,8 @@ def stacked(rows):
     return [r for r in rows if r[3].startswith("output of scan")]
 
 
-def residuals(factor, crop, batch, seq):
-    model = models.build("dlctus", factor)
+def residuals(factor, crop, batch, seq, remat_edges=True):
+    model = models.build("dlctus", factor, remat_edges=remat_edges)
     params = model.init(jax.random.PRNGKey(0))
     h = crop // factor
     frames = [random_frame(h, h, batch, seed=t) for t in range(seq)]
@@ -101,11 +101,15 @@ def main():
     p.add_argument("--crop", type=int, default=128)
     p.add_argument("--batch", type=int, default=4)
     p.add_argument("--seq", type=int, default=8)
+    p.add_argument("--keep-edges", action="store_true",
+                   help="dlctus.Config.remat_edges=False: keep the residuals of the "
+                        "down-sampling and the output construction")
     p.add_argument("--name", default="scan-bookkeeping")
     args = p.parse_args()
-    rows = residuals(args.factor, args.crop, args.batch, args.seq)
+    rows = residuals(args.factor, args.crop, args.batch, args.seq, not args.keep_edges)
     md = (f"DLCTUS {args.factor}x training window: crop {args.crop}, batch {args.batch}, "
-          f"{args.seq} frames, the loss on every frame.\n\n" + table(rows, args.seq))
+          f"{args.seq} frames, the loss on every frame; remat_edges="
+          f"{not args.keep_edges}.\n\n" + table(rows, args.seq))
     total = sum(r[2] for r in stacked(rows))
     write(args.name, md, {"stacked_bytes": total, "buffers": len(stacked(rows)),
                           "rows": [list(r) for r in rows]})

@@ -2,7 +2,9 @@
 one process, round-robin (a, b, c, ..., a, b, c, ...) so every variant sees the same
 machine; the ratios are what to read (docs/performance.md, "Training speed").
 
-Variants: the plain scan of ``step`` (the default), the carry-independent
+Variants: the plain scan of ``step`` (the default), the same keeping the residuals of
+the network's down-sampling and output construction per frame instead of recomputing
+them (``dlctus.Config.remat_edges=False``), the carry-independent
 preparation hoisted out of the scan (``Model.prepare``), the hoisted step under
 ``jax.checkpoint`` policies (``rollout.REMAT_POLICIES``, full remat), and the
 hand-written reverse-time backward (``remat="reverse"``: the forward keeps each frame's
@@ -30,6 +32,7 @@ from jtus import bench, timing
 
 VARIANTS = {  # name -> train_workload overrides
     "plain scan": {"hoist": False},
+    "plain scan, edges kept": {"hoist": False, "remat_edges": False},  # dlctus.Config
     "hoisted preparation": {"hoist": True},
     "hoisted + remat dots": {"hoist": True, "remat": "dots"},
     "hoisted + remat dots_no_batch": {"hoist": True, "remat": "dots_no_batch"},

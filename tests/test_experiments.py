@@ -413,3 +413,13 @@ def test_scan_residuals_sums_the_buffers_the_scan_stacks():
     assert [r[2] for r in rows] == [4 * 9 * 32 * 32, 8 * 4 * 32 ** 3, 4 * 8 * 4 * 34 * 34 * 32, 4]
     assert [r[1] for r in sr.stacked(rows)] == [(8, 4, 32, 32, 32), (8, 4, 34, 34, 32)]
     assert "2 buffers" in sr.table(rows, 8)
+
+
+def test_recomputed_edges_stack_fewer_bytes_per_frame():
+    """With DLCTUS's down-sampling and output construction recomputed (``remat_edges``),
+    a training window's scan stacks fewer residual bytes than when it keeps them
+    (experiments/scan_residuals.py on a small window)."""
+    sr = seqdata.load_script("scan_residuals")
+    kept, recomputed = (sum(r[2] for r in sr.stacked(sr.residuals(4, 32, 1, 2, remat)))
+                        for remat in (False, True))
+    assert 0 < recomputed < 0.8 * kept

@@ -127,15 +127,17 @@ def bench_infer(name, factor, size, repeats, dtype="float32", reference=True, **
 
 def train_workload(factor, crop, batch, seq, loss_frames, remat=False, unroll=1,
                    conv_backward="custom", warp="bicubic", hoist=False, name="dlctus",
-                   kernels="auto"):
+                   kernels="auto", remat_edges=True):
     """One BPTT training step of ``name`` (its own loss, Adam) on random data.
-    ``conv_backward``, ``warp`` and ``kernels`` apply to models whose config has them. Returns
+    ``conv_backward``, ``warp``, ``kernels`` and ``remat_edges`` apply to models whose
+    config has them. Returns
     ``(run, hlo, model)``: ``run()`` takes one step and blocks; ``hlo()`` is the
     compiled module's text (for profiles)."""
     spec = models.spec(name)
     fields = spec.config(factor).__dataclass_fields__
     over = {k: v for k, v in (("conv_backward", conv_backward), ("warp", warp),
-                              ("kernels", kernels)) if k in fields}
+                              ("kernels", kernels), ("remat_edges", remat_edges))
+            if k in fields}
     model = models.build(name, factor, **over)
     opt = optax.adam(1e-4)
     ts = [train.create_train_state(model.init(jax.random.PRNGKey(0)), opt)]

@@ -22,6 +22,12 @@ followed by a 1x1 convolution, i.e. a matmul).
 Without the accumulation buffer the history's fourth channel is held at 1: the
 network still sees 8 channels and ``o2`` is unused.
 
+In training, the 4x4 down-sampling and the output construction are recomputed in the
+backward pass (``remat_edges``, ``jax.checkpoint``): a training scan would otherwise
+stack their residuals (the history in two layouts, the blend's masks and factors) for
+every frame, which on XLA:CPU costs more than the recomputation (docs/performance.md,
+"The scan's buffers"). Values are the same either way.
+
 Preparation and output construction run in float32; the network in the configured
 compute dtype; the carried history is always float32 (all three are float64 when
 ``dtype="float64"``, for references and gradient checks).
@@ -31,6 +37,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import functools
 import pickle
 from typing import NamedTuple, Optional
 
@@ -68,6 +75,9 @@ class Config:
     formulation: str = "opt2"
     conv_backward: str = "custom"    # or "autodiff": see layers.conv_edge_fast
     kernels: str = "auto"        # "xla", "im2col" (matmuls), "pallas" (Triton kernels)
+    # recompute the 4x4 down-sampling and the output construction in the backward pass
+    # rather than keep their residuals per frame (a training scan stacks them)
+    remat_edges: bool = True
     channels: int = 32
     blocks: int = 4
 
@@ -191,7 +201,10 @@ def network(params, x: NetInput, config: Config):
     the compute dtype (before the shuffle)."""
     dt = compute_dtype(config.dtype)
     params = jax.tree_util.tree_map(lambda p: p.astype(dt), params)
-    return _trunk(params, _down(params, x, config, dt), config)
+    down = functools.partial(_down, config=config, dt=dt)
+    if config.remat_edges:
+        down = jax.checkpoint(down)
+    return _trunk(params, down(params, x), config)
 
 
 def _construct(jau, hist, o1, o2, config, axis):
@@ -267,7 +280,8 @@ def advance(params, state: State, pre: Prepared, config: Config = Config()):
     with jax.named_scope("network"):
         net = network(params, net_in, config)
     with jax.named_scope("output"):
-        out = _output(jau, hist, net, config)
+        output = functools.partial(_output, config=config)
+        out = (jax.checkpoint(output) if config.remat_edges else output)(jau, hist, net)
     return out[..., :3], State(out)
 
 
