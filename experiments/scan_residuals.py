@@ -23,12 +23,11 @@ import re
 
 import jax
 from jax.ad_checkpoint import print_saved_residuals
-import jax.numpy as jnp
 import numpy as np
 from common import write
 
 from jtus import losses, models, rollout
-from jtus.bench.workloads import random_frame
+from jtus.bench import random_window
 
 _LINE = re.compile(r"(\w+)\[([\d,]*)\]\s*(.*)")
 ITEMSIZE = {"bool": 1, "i8": 1, "u8": 1, "f16": 2, "bf16": 2, "f32": 4, "i32": 4, "u32": 4,
@@ -58,12 +57,7 @@ def stacked(rows):
 def residuals(factor, crop, batch, seq, remat_edges=True):
     model = models.build("dlctus", factor, remat_edges=remat_edges)
     params = model.init(jax.random.PRNGKey(0))
-    h = crop // factor
-    frames = [random_frame(h, h, batch, seed=t) for t in range(seq)]
-    frames = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *frames)
-    frames = frames._replace(reset=jnp.zeros((seq, batch), bool).at[0].set(True))
-    targets = jnp.asarray(np.random.default_rng(9).uniform(size=(seq, batch, crop, crop, 3)),
-                          jnp.float32)
+    frames, targets = random_window(factor, crop, batch, seq)
     loss_fn = losses.make(models.spec("dlctus").loss, factor)
     advance, prepare = rollout.parts(model)
 

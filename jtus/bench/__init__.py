@@ -3,7 +3,8 @@
 
 from jtus.bench.report import markdown
 from jtus.bench.workloads import (SIZES, bench_infer, bench_train, infer_workload, peaks,
-                                  random_frame, torch_reference, train_workload)
+                                  random_frame, random_window, torch_reference,
+                                  train_workload)
 
 __all__ = ["SIZES", "bench_infer", "bench_train", "infer_workload", "markdown", "peaks",
-           "random_frame", "torch_reference", "train_workload"]
+           "random_frame", "random_window", "torch_reference", "train_workload"]

@@ -125,6 +125,18 @@ def bench_infer(name, factor, size, repeats, dtype="float32", reference=True, **
     return rec
 
 
+def random_window(factor, crop, batch, seq):
+    """A training window of random data: time-major ``Frame [T,B,...]`` of ``crop //
+    factor`` pixels (reset on the first frame) and HR targets ``[T,B,crop,crop,3]``."""
+    h = crop // factor
+    frames = [random_frame(h, h, batch, seed=t) for t in range(seq)]
+    frames = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *frames)
+    frames = frames._replace(reset=jnp.zeros((seq, batch), bool).at[0].set(True))
+    targets = jnp.asarray(np.random.default_rng(9).uniform(size=(seq, batch, crop, crop, 3)),
+                          jnp.float32)
+    return frames, targets
+
+
 def train_workload(factor, crop, batch, seq, loss_frames, remat=False, unroll=1,
                    conv_backward="custom", warp="bicubic", hoist=False, name="dlctus",
                    kernels="auto", remat_edges=True):
@@ -144,12 +156,7 @@ def train_workload(factor, crop, batch, seq, loss_frames, remat=False, unroll=1,
     step = train.make_train_step(model, losses.make(spec.loss, factor), opt,
                                  loss_frames=loss_frames, remat=remat, unroll=unroll,
                                  hoist=hoist)
-    h = crop // factor
-    frames = [random_frame(h, h, batch, seed=t) for t in range(seq)]
-    frames = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *frames)
-    frames = frames._replace(reset=jnp.zeros((seq, batch), bool).at[0].set(True))
-    targets = jnp.asarray(np.random.default_rng(9).uniform(size=(seq, batch, crop, crop, 3)),
-                          jnp.float32)
+    frames, targets = random_window(factor, crop, batch, seq)
 
     def carry():
         return rollout.start(rollout.first_state(model, frames), targets[0])
