@@ -73,18 +73,20 @@ def residuals(factor, crop, batch, seq, remat_edges=True):
 
 
 def table(rows, seq):
-    groups = collections.Counter()
-    for dtype, shape, size, _ in stacked(rows):
-        groups[f"{dtype}[{','.join(map(str, shape))}]"] += size
+    kept = stacked(rows)
+    groups, counts = collections.Counter(), collections.Counter()
+    for dtype, shape, size, _ in kept:
+        key = f"{dtype}[{','.join(map(str, shape))}]"
+        groups[key] += size
+        counts[key] += 1
     lines = ["| stacked residual (frames first) | count | MiB |", "| --- | --- | --- |"]
-    counts = collections.Counter(f"{d}[{','.join(map(str, s))}]" for d, s, _, _ in stacked(rows))
     for k, size in groups.most_common():
         lines.append(f"| {k} | {counts[k]} | {size / 2 ** 20:.1f} |")
-    total = sum(r[2] for r in stacked(rows))
+    total = sum(groups.values())
     lines += ["", f"Stacked over the {seq} frames: {total / 2 ** 20:.1f} MiB "
-              f"({total / seq / 2 ** 20:.2f} MiB per frame), in {len(stacked(rows))} buffers; "
+              f"({total / seq / 2 ** 20:.2f} MiB per frame), in {len(kept)} buffers; "
               f"other residuals (parameters, the prepared frames): "
-              f"{sum(r[2] for r in rows) / 2 ** 20 - total / 2 ** 20:.1f} MiB."]
+              f"{(sum(r[2] for r in rows) - total) / 2 ** 20:.1f} MiB."]
     return "\n".join(lines)
 
 
@@ -104,8 +106,8 @@ def main():
     md = (f"DLCTUS {args.factor}x training window: crop {args.crop}, batch {args.batch}, "
           f"{args.seq} frames, the loss on every frame; remat_edges="
           f"{not args.keep_edges}.\n\n" + table(rows, args.seq))
-    total = sum(r[2] for r in stacked(rows))
-    write(args.name, md, {"stacked_bytes": total, "buffers": len(stacked(rows)),
+    kept = stacked(rows)
+    write(args.name, md, {"stacked_bytes": sum(r[2] for r in kept), "buffers": len(kept),
                           "rows": [list(r) for r in rows]})
 
 
