@@ -10,7 +10,7 @@ import pytest
 from jtus import sampling, sim
 from jtus.files import UnknownKeyWarning
 from jtus.sim import paths, render
-from jtus.sim.video import VideoRenderer
+from jtus.sim.video import ROTATED_GRID, VideoRenderer
 
 
 def _moving_frames(video, factor, min_motion=0.3, min_fraction=0.03):
@@ -258,24 +258,72 @@ def test_suite_covers_every_effect_alone():
     assert set(sim.EFFECTS) - alone <= {"moving_light", "hdr"}
 
 
-def test_adaptive_target_refines_only_where_samples_disagree():
-    """``adaptive_target`` is the base-sample target where no pixel's samples disagree,
-    the refined-sample target where all do, and between those refines a border of
-    pixels around each busy one (the measured trade: experiments/adaptive_targets.py)."""
+def _box_mean(renderer, state, offsets):
+    """The box filter of one sample at each of ``offsets`` in every pixel, by hand."""
+    h, w = renderer.H, renderer.W
+    jy, jx = np.divmod(np.arange(h * w, dtype=np.float64), w)
+    acc = sum(renderer.points(state, np.stack([(jx + ox) / w, (jy + oy) / h], -1)
+                              .astype(np.float32))["color"].astype(np.float64)
+              for ox, oy in offsets)
+    return (acc / len(offsets)).reshape(h, w, 3)
+
+
+def test_adaptive_target_is_4_16_or_64_samples_where_they_disagree():
+    """``adaptive_target``: the rotated grid's 4 samples where nothing disagrees, the
+    whole 4x4 grid (the uniform 16-sample target) and then the 8x8 grid as the
+    thresholds fall; with the default thresholds each pixel is exactly one of the
+    three, and the 4-sample pixels lie away from where the samples disagree."""
     scene = sim.get_scene("fence_pan")
     st = paths.timeline(scene, "test", 0, 1, 1.0)[0]
-    base = VideoRenderer(scene, (16, 16), (4,), spp=4)
-    fine = VideoRenderer(scene, (16, 16), (4,), spp=16)
-    none, share0 = base.adaptive_target(st, 4, 16, threshold=2.0)
-    every, share1 = base.adaptive_target(st, 4, 16, threshold=-1.0)
-    np.testing.assert_array_equal(none, base.target(st))
-    np.testing.assert_array_equal(every, fine.target(st))
-    assert (share0, share1) == (0.0, 1.0)
-    some, share = base.adaptive_target(st, 4, 16, threshold=1 / 64)
-    assert 0 < share < 1
-    changed = np.any(some != none, -1)  # refined pixels: the 16-sample values exactly
-    assert 0 < changed.mean() <= share
-    np.testing.assert_array_equal(some[changed], every[changed])
+    r = VideoRenderer(scene, (24, 32), (4,), spp=16)
+    four, c4 = r.adaptive_target(st, (2.0, 2.0))
+    sixteen, c16 = r.adaptive_target(st, (-1.0, 2.0))
+    many, c64 = r.adaptive_target(st, (-1.0, -1.0))
+    assert (c4 == 4).all() and (c16 == 16).all() and (c64 == 64).all()
+    np.testing.assert_allclose(four, _box_mean(r, st, ROTATED_GRID), atol=1e-6)
+    np.testing.assert_allclose(sixteen, r.target(st), atol=1e-6)
+    np.testing.assert_allclose(many, VideoRenderer(scene, (24, 32), (4,), spp=64).target(st),
+                               atol=1e-6)
+    got, count = r.adaptive_target(st)
+    assert {4, 16, 64} == set(np.unique(count).tolist())
+    for n, full in ((4, four), (16, sixteen), (64, many)):
+        np.testing.assert_allclose(got[count == n], full[count == n], atol=1e-6)
+    # where the 4 samples span an edge (the 4- and 16-sample values differ clearly), the
+    # pixel was refined
+    assert (count[np.abs(four - sixteen).max(-1) > 0.1] > 4).all()
+
+
+@pytest.mark.parametrize("name", ["fence_pan", "everything", "random_3"])
+def test_adaptive_target_is_closer_to_a_64_sample_reference_than_16_uniform(name):
+    """The bound the adaptive targets are measured by (experiments/adaptive_targets.py):
+    against a 64-sample jittered reference of the frame, sharing no sample position
+    with either, the adaptive target is at least as close (PSNR) as the uniform
+    16-sample target. (Its rays depend on the content: more than 16 per pixel on these
+    busy 64x64 frames, 4-8 on game levels; docs/simulator.md.)"""
+    scene = sim.random_scene(3) if name == "random_3" else sim.get_scene(name)
+    st = paths.timeline(scene, "test", 0, 1, 1.0)[0]
+    r = VideoRenderer(scene, (64, 64), (4,), spp=16)
+    ref = r.jittered_reference(st, 8, seed=1)
+    target, _ = r.adaptive_target(st)
+    assert _psnr(target, ref) >= _psnr(r.target(st), ref)
+
+
+def _psnr(a, b):
+    return -10 * np.log10(np.mean((np.asarray(a, np.float64) - b) ** 2))
+
+
+def test_jittered_reference_converges_to_the_grid_target():
+    """``jittered_reference`` is a box filter of the pixel: with 16x16 cells it agrees
+    with the 256-sample grid target of the same frame to 5e-3 RMS, closer than with
+    8x8 cells; a new seed draws new points."""
+    scene = sim.get_scene("fence_pan")
+    st = paths.timeline(scene, "test", 0, 1, 1.0)[0]
+    r = VideoRenderer(scene, (16, 16), (4,), spp=256)
+    grid = r.target(st)
+    rms = [np.sqrt(np.mean((r.jittered_reference(st, c, seed=0) - grid) ** 2)) for c in (8, 16)]
+    assert rms[1] < min(rms[0], 5e-3)
+    assert not np.array_equal(r.jittered_reference(st, 4, seed=0),
+                              r.jittered_reference(st, 4, seed=1))
 
 
 def _ray_meets_sphere(o, d, centre, radius, t_max=np.inf):

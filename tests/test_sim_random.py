@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from jtus import sim
+from jtus.data import __main__ as data_cli
 from jtus.data import dataset
 from jtus.sampling import jitter_sequence
 from jtus.sampling.jitter import VARIETY
@@ -234,6 +235,32 @@ def test_sim_render_cli_writes_a_dataset_and_refuses_bad_input(tmp_path, capsys)
     bad_json.write_text("{not json")
     assert sim_cli.main(["render", "--scene", str(bad_json), "--out", str(tmp_path / "c.h5")]) == 2
     assert "bad.json" in capsys.readouterr().err
+
+
+def test_sim_render_writes_adaptive_targets_and_info_names_them(tmp_path, capsys):
+    """``--targets adaptive``: the videos' targets are ``VideoRenderer.adaptive_target``'s
+    and the file says so (``targets`` attr, ``spp`` 0); ``--spp`` beside it is refused
+    before anything is written."""
+    out = tmp_path / "a.h5"
+    assert sim_cli.main(["render", "--random", "3", "--size", "16", "--frames", "2",
+                         "--targets", "adaptive", "--out", str(out), "--quiet"]) == 0
+    scene = sim.random_scene(3)
+    r = VideoRenderer(scene, (16, 16), (2, 4), targets="adaptive")
+    st = r.timeline("test", 0, 2)[1]
+    with dataset.Dataset(out) as ds:
+        assert (ds.file.attrs["targets"], ds.file.attrs["spp"]) == ("adaptive", 0)
+        _, target = ds.video("test", "random_3_00", 4)
+        np.testing.assert_allclose(target[1, 0], r.adaptive_target(st)[0], atol=1e-3)
+    capsys.readouterr()
+    assert data_cli.main(["info", str(out)]) == 0
+    assert "adaptive targets" in capsys.readouterr().out
+    assert sim_cli.main(["render", "--random", "3", "--targets", "adaptive", "--spp", "8",
+                         "--out", str(tmp_path / "b.h5")]) == 2
+    assert "--spp" in capsys.readouterr().err and not (tmp_path / "b.h5").exists()
+    with pytest.raises(SystemExit):  # argparse's choices
+        sim_cli.main(["render", "--random", "3", "--targets", "sparse",
+                      "--out", str(tmp_path / "b.h5")])
+    assert not (tmp_path / "b.h5").exists()
 
 
 def test_sim_show_and_preview_take_the_same_scenes(tmp_path, capsys):

@@ -1,6 +1,7 @@
 """``python -m jtus.data``: generate datasets, import EXR sequences, export videos.
 
     python -m jtus.data generate --preset default --out data/default.h5
+    python -m jtus.data generate --preset diverse --targets adaptive --out data/diverse-a.h5
     python -m jtus.data import-exr --input renders/lr --target renders/hr --factor 4 \\
         --sidecar renders/spec.json --out data/mine.h5
     python -m jtus.data import-nss --root captures/nss --factor 2 --out data/nss-x2.h5
@@ -20,6 +21,23 @@ from jtus import cli
 from jtus.data import dataset, exr, nss
 from jtus.files import check_budget, check_out_file
 from jtus.sim import generate
+from jtus.sim.video import TARGETS
+
+
+def _generate_args(g):
+    """``generate``'s options."""
+    g.add_argument("--preset", choices=generate.PRESET_NAMES, default="default")
+    g.add_argument("--out", required=True)
+    g.add_argument("--quiet", action="store_true")
+    g.add_argument("--targets", choices=TARGETS,
+                   help="target supersampling (default: the preset's, uniform for every "
+                        "built-in one; adaptive: docs/simulator.md)")
+    g.add_argument("--workers", type=int, default=generate.default_workers(),
+                   help="rendering processes, one per core (default: every core this "
+                        "process may use)")
+    g.add_argument("--force", action="store_true",
+                   help="go on past the memory or disk budget (an existing --out is "
+                        "always replaced, once the new file is complete)")
 
 
 def _parser():
@@ -27,15 +45,7 @@ def _parser():
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
     g = sub.add_parser("generate", help="render a preset into an HDF5 file (atomically)")
-    g.add_argument("--preset", choices=generate.PRESET_NAMES, default="default")
-    g.add_argument("--out", required=True)
-    g.add_argument("--quiet", action="store_true")
-    g.add_argument("--workers", type=int, default=generate.default_workers(),
-                   help="rendering processes, one per core (default: every core this "
-                        "process may use)")
-    g.add_argument("--force", action="store_true",
-                   help="go on past the memory or disk budget (an existing --out is "
-                        "always replaced, once the new file is complete)")
+    _generate_args(g)
     i = sub.add_parser("import-exr", help="an EXR sequence into the HDF5 layout")
     i.add_argument("--input", required=True, help="folder of LR per-frame EXRs")
     i.add_argument("--target", required=True, help="folder of HR per-frame EXRs")
@@ -125,8 +135,10 @@ def _info(args):
     args.dataset = args.dataset or args.path
     with dataset.Dataset(args.dataset) as ds:
         a = ds.file.attrs
+        spp = ("adaptive targets (4, 16 or 64 spp)" if a.get("targets") == "adaptive"
+               else f"spp {a['spp']}")
         print(f"{args.dataset}: {a['size'][0]}x{a['size'][1]}, factors {list(ds.factors)}, "
-              f"spp {a['spp']}, mip_bias {a['mip_bias']}")
+              f"{spp}, mip_bias {a['mip_bias']}")
         for split in dataset.SPLITS:
             vids = ds.videos(split)
             frames = sum(ds.file[f"{split}/{v}/target"].shape[0] for v in vids)
@@ -141,10 +153,12 @@ def main(argv=None):
             check_out_file(args.out, kind="an .h5 file")
             if args.workers < 1:
                 raise ValueError(f"--workers: expected a positive integer, got {args.workers}")
-            check_budget(*generate.preset(args.preset).budget(args.workers), args.out,
+            p = generate.preset(args.preset)
+            if args.targets:
+                p = dataclasses.replace(p, targets=args.targets)
+            check_budget(*p.budget(args.workers), args.out,
                          args.force, what=f"generate --preset {args.preset}")
-            generate.generate(args.preset, args.out, progress=not args.quiet,
-                              workers=args.workers)
+            generate.generate(p, args.out, progress=not args.quiet, workers=args.workers)
             print(f"wrote {args.out}")
         elif args.cmd == "import-exr":
             _import(args)

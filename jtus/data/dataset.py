@@ -2,7 +2,8 @@
 
 Layout (``docs/data.md``)::
 
-    /                  attrs: format="jtus-dataset", version, spp, mip_bias, spp_match,
+    /                  attrs: format="jtus-dataset", version, spp, targets (uniform or
+                              adaptive; spp 0 for adaptive), mip_bias, spp_match,
                               conventions (JSON), factors, size
     /{split}/{video}/  attrs: scene, effects (JSON), length, index, jitter_sequence,
                               jitter_phase, near, far (the depth's clip planes)
@@ -94,8 +95,12 @@ def write_video(group, video, factors, spp_match):
         g.create_dataset("jitter", data=v["jitter"].astype(np.float32))
 
 
-def write_root_attrs(fh, size, factors, spp, spp_match):
-    fh.attrs.update({"format": FORMAT, "version": VERSION, "spp": spp, "spp_match": spp_match,
+def write_root_attrs(fh, size, factors, spp, spp_match, targets="uniform"):
+    """The file's attributes. ``targets="adaptive"`` (4, 16 or 64 samples per pixel,
+    ``jtus.sim.video.VideoRenderer.adaptive_target``) stores ``spp`` 0."""
+    spp = 0 if targets == "adaptive" else spp
+    fh.attrs.update({"format": FORMAT, "version": VERSION, "spp": spp, "targets": targets,
+                     "spp_match": spp_match,
                      "mip_bias": 0.0 - 0.5 * math.log2(spp_match), "factors": list(factors),
                      "size": list(size), "conventions": json.dumps(CONVENTIONS)})
 

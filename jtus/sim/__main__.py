@@ -8,6 +8,7 @@
     python -m jtus.sim render --scene my_scene.json --out my.h5 --frames 24
     python -m jtus.sim render --random 123 --effects camera_motion,texture_detail --out r.h5
     python -m jtus.sim fps --preset default
+    python -m jtus.sim render --random 123 --targets adaptive --out r.h5   # fewer rays
     python -m jtus.sim cost --out docs/results/sim_cost.json
     python -m jtus.sim render --scene my_level.gltf --out mine.h5 --frames 24
     python -m jtus.sim render --scene oa:oa_dm4 --out dm4.h5   # after data/fetch_game_assets.sh
@@ -43,7 +44,7 @@ from jtus.sim import SCENES, from_json, game, get_scene, meshfile, random_scene,
 from jtus.sim.generate import Preset, default_workers, generate, preset, render_budget
 from jtus.sim.mesh import MESH_EFFECTS, MeshScene
 from jtus.sim.scene import EFFECTS, Scene
-from jtus.sim.video import VideoRenderer
+from jtus.sim.video import TARGETS, VideoRenderer
 
 
 def _to_u8(x):
@@ -134,8 +135,11 @@ def _render(args):
     for f in args.factors:
         if f not in (2, 4):
             raise ValueError(f"--factors: expected 2 and/or 4, got {f}")
-    if args.frames < 1 or args.videos < 1 or args.spp < 1 or args.workers < 1:
+    if args.frames < 1 or args.videos < 1 or (args.spp or 1) < 1 or args.workers < 1:
         raise ValueError("--frames, --videos, --spp and --workers: expected positive integers")
+    if args.targets == "adaptive" and args.spp is not None:
+        raise ValueError("--spp: adaptive targets choose 4, 16 or 64 samples per pixel "
+                         "themselves; give --spp only with --targets uniform")
     check_budget(*render_budget(args.size, args.factors, args.frames,
                                 len(names) * args.videos, args.workers), args.out,
                  args.force, what="sim render")
@@ -143,15 +147,37 @@ def _render(args):
     for j in jitters:
         for f in args.factors:
             jitter_sequence(j, f)  # refuses unknown names before anything renders
-    p = Preset((args.size, args.size), tuple(args.factors), args.spp, 1,
+    p = Preset((args.size, args.size), tuple(args.factors), args.spp or 16, 1,
                {sp: ((tuple(names) if sp == args.split else ()), args.videos, args.frames)
-                for sp in SPLITS}, jitters)
+                for sp in SPLITS}, jitters, targets=args.targets)
     t0 = time.perf_counter()
     generate(p, args.out, progress=not args.quiet, custom={s.name: s for s in scenes},
              workers=args.workers)
     print(f"wrote {args.out}: {len(names)} scene(s) x {args.videos} video(s) x {args.frames} "
           f"frames in split {args.split!r} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
     return 0
+
+
+def _render_args(r):
+    """``render``'s options beside the scene ones."""
+    r.add_argument("--out", required=True)
+    r.add_argument("--force", action="store_true",
+                   help="replace an existing --out, and render past the memory and disk check")
+    r.add_argument("--frames", type=int, default=24)
+    r.add_argument("--videos", type=int, default=1, help="videos per scene (own camera seeds)")
+    r.add_argument("--size", type=int, default=256, help="HR frame size (square)")
+    r.add_argument("--factors", type=int, nargs="+", default=[2, 4])
+    r.add_argument("--spp", type=int, help="target samples per pixel (uniform targets; "
+                   "default 16)")
+    r.add_argument("--targets", choices=TARGETS, default="uniform",
+                   help="uniform: --spp samples in every pixel; adaptive: 4, 16 or 64 "
+                        "where the samples disagree (docs/simulator.md)")
+    r.add_argument("--workers", type=int, default=default_workers(),
+                   help="rendering processes, one per core (default: every core)")
+    r.add_argument("--split", default="test", choices=("train", "val", "test"))
+    r.add_argument("--jitter", default="thesis",
+                   help=f"one of {VARIETY}, halton<N>, or 'variety' (drawn per video)")
+    r.add_argument("--quiet", action="store_true")
 
 
 def main(argv=None):
@@ -181,23 +207,11 @@ def main(argv=None):
     scene_args(s, many=False)
     r = sub.add_parser("render", help="render scenes into an HDF5 dataset")
     scene_args(r)
-    r.add_argument("--out", required=True)
-    r.add_argument("--force", action="store_true",
-                   help="replace an existing --out, and render past the memory and disk check")
-    r.add_argument("--frames", type=int, default=24)
-    r.add_argument("--videos", type=int, default=1, help="videos per scene (own camera seeds)")
-    r.add_argument("--size", type=int, default=256, help="HR frame size (square)")
-    r.add_argument("--factors", type=int, nargs="+", default=[2, 4])
-    r.add_argument("--spp", type=int, default=16, help="target samples per pixel")
-    r.add_argument("--workers", type=int, default=default_workers(),
-                   help="rendering processes, one per core (default: every core)")
-    r.add_argument("--split", default="test", choices=("train", "val", "test"))
-    r.add_argument("--jitter", default="thesis",
-                   help=f"one of {VARIETY}, halton<N>, or 'variety' (drawn per video)")
-    r.add_argument("--quiet", action="store_true")
+    _render_args(r)
     f = sub.add_parser("fps", help="rendering speed of a dataset preset on this machine")
     f.add_argument("--preset", default="default")
     f.add_argument("--frames", type=int, default=6)
+    f.add_argument("--targets", choices=TARGETS, help="override the preset's targets")
     c = sub.add_parser("cost", help="rendering time per frame with each effect alone")
     c.add_argument("--seed", type=int, default=3, help="random scene to measure")
     c.add_argument("--size", type=int, default=192)
@@ -244,7 +258,7 @@ def _dispatch(args):
         return _render(args)
     if args.cmd == "cost":
         return _cost(args)
-    return _fps(args.preset, args.frames)
+    return _fps(args.preset, args.frames, args.targets)
 
 
 def effect_costs(seed=3, size=192, frames=4, factors=(2, 4), spp=16):
@@ -315,19 +329,23 @@ def _cost(args):
     return 0
 
 
-def _fps(preset_name, frames):
+def _fps(preset_name, frames, targets=None):
     """Frames per second of rendering a preset's videos (every factor and the
-    target), warm, averaged over the built-in scenes."""
+    target), warm, averaged over the built-in scenes; ``targets`` overrides the
+    preset's."""
     p = preset(preset_name)
+    p = dataclasses.replace(p, targets=targets or p.targets)
     total, n = 0.0, 0
     for name in SCENES:
-        r = VideoRenderer(get_scene(name), p.size, p.factors, p.spp, p.spp_match)
+        r = VideoRenderer(get_scene(name), p.size, p.factors, p.spp, p.spp_match,
+                          targets=p.targets)
         r.video("train", 0, 1)  # compile
         t0 = time.perf_counter()
         r.video("train", 1, frames)
         total += time.perf_counter() - t0
         n += frames
-    print(f"preset {preset_name}: {p.size[0]}x{p.size[1]}, factors {p.factors}, {p.spp} spp: "
+    spp = "adaptive targets" if p.targets == "adaptive" else f"{p.spp} spp"
+    print(f"preset {preset_name}: {p.size[0]}x{p.size[1]}, factors {p.factors}, {spp}: "
           f"{n / total:.2f} frames/s over {len(SCENES)} scenes x {frames} frames "
           f"({platform.processor() or platform.machine()})")
     return 0

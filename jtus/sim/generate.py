@@ -44,7 +44,9 @@ class Preset:
     each video's choice and its starting phase come from its own seed and are stored
     (``jitter`` per frame, the sequence's name in the video's attrs).
     ``hold_from``: each video moves for this many frames, then holds still while only
-    the jitter moves (``VideoRenderer.video``), stored in the video's attrs."""
+    the jitter moves (``VideoRenderer.video``), stored in the video's attrs.
+    ``targets``: ``"uniform"`` (``spp`` samples in every pixel) or ``"adaptive"``
+    (``VideoRenderer.adaptive_target``: 4, 16 or 64 samples; ``spp`` unused)."""
     size: tuple
     factors: tuple
     spp: int
@@ -53,6 +55,7 @@ class Preset:
     jitters: tuple = ("thesis",)
     effects: tuple = ()   # added to every scene's own (``jtus.sim.with_effects``)
     hold_from: Optional[int] = None  # every video stands still from this frame on
+    targets: str = "uniform"
 
     def total_frames(self):
         return sum(len(s) * n * t for s, n, t in self.splits.values())
@@ -209,7 +212,8 @@ def _render_into(fh, p: Preset, videos, custom, progress):
     for split, name, i, length in videos:
         if name not in renderers:
             renderers[name] = VideoRenderer(_with_effects(scene_of(name, custom), p.effects),
-                                            p.size, p.factors, p.spp, p.spp_match)
+                                            p.size, p.factors, p.spp, p.spp_match,
+                                            targets=p.targets)
         r = renderers[name]
         jit, phase = video_jitter(p.jitters, name, split, i)
         video = r.video(split, i, length, progress=progress, jitter=jit, jitter_phase=phase,
@@ -299,7 +303,7 @@ def generate(name_or_preset, out, progress=True, scenes=None, custom=None, worke
     bar = tqdm(total=sum(v[3] for v in videos), unit="frame", desc=f"generate {out}",
                disable=not progress)
     with atomic_path(out) as tmp, h5py.File(tmp, "w") as fh:
-        write_root_attrs(fh, p.size, p.factors, p.spp, p.spp_match)
+        write_root_attrs(fh, p.size, p.factors, p.spp, p.spp_match, p.targets)
         if workers > 1 and len({v[1] for v in videos}) > 1:
             _render_parallel(fh, p, videos, custom, workers, bar)
         else:

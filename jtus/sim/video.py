@@ -31,6 +31,46 @@ def _grid(h, w):
     return j.reshape(-1), i.reshape(-1)
 
 
+# Four cells of the 4x4 stratified grid, one in each row and each column (the rotated-
+# grid pattern): adaptive targets' first pass, completed to the whole grid where refined
+ROTATED_GRID = np.array([(0.125, 0.375), (0.375, 0.875), (0.625, 0.125), (0.875, 0.625)])
+_GRID16_REST = np.array([o for o in subsample_offsets(16).tolist()
+                         if o not in ROTATED_GRID.tolist()])
+# the cheapest of those tried that beat uniform 16 samples on every train frame and train
+# level (docs/results/adaptive-targets-train/)
+ADAPTIVE_THRESHOLDS = (1 / 32, 1 / 16)
+TARGETS = ("uniform", "adaptive")
+
+
+def _spread(samples):
+    """Per pixel, the largest range over samples ``[S,N,3]`` of a tone-mapped channel
+    (``x / (1 + x)``: HDR highlights do not dominate)."""
+    t = samples / (1.0 + samples)
+    return (t.max(0) - t.min(0)).max(-1)
+
+
+def _grow(busy):
+    """``busy [H,W]`` and its 8 neighbours, flattened: an edge between two pixels' samples
+    may leave one of them uniform."""
+    grown = busy.copy()
+    grown[1:] |= busy[:-1]
+    grown[:-1] |= busy[1:]
+    grown[:, 1:] |= grown[:, :-1].copy()
+    grown[:, :-1] |= grown[:, 1:].copy()
+    return grown.reshape(-1)
+
+
+def _morton(x, y):
+    """Z-order (Morton) codes of non-negative integer pixel coordinates below 2**16."""
+    def spread(v):
+        v = np.asarray(v, np.uint64)
+        for shift, mask in ((8, 0x00FF00FF), (4, 0x0F0F0F0F), (2, 0x33333333),
+                            (1, 0x55555555)):
+            v = (v | (v << np.uint64(shift))) & np.uint64(mask)
+        return v
+    return spread(x) | (spread(y) << np.uint64(1))
+
+
 CHUNK = 16384
 
 
@@ -39,11 +79,16 @@ class VideoRenderer:
     ``MeshScene`` is cast by ``jtus.sim.mesh.MeshRenderer`` along ``jtus.sim.walk``'s
     camera paths; everything else (jitter, targets, holds) is the same. ``intersect``:
     how the analytic renderer meets objects (``jtus.sim.render.make_split_renderer``;
-    ``"culled"``, the default, skips objects no ray of a tile can reach)."""
+    ``"culled"``, the default, skips objects no ray of a tile can reach). ``targets``:
+    ``"uniform"`` (``spp`` samples in every pixel) or ``"adaptive"``
+    (``adaptive_target``; ``spp`` then unused)."""
 
     def __init__(self, scene: Scene, size, factors=(2, 4), spp=16, spp_match=1,
-                 intersect="culled"):
+                 intersect="culled", targets="uniform"):
+        if targets not in TARGETS:
+            raise ValueError(f"targets: expected one of {TARGETS}, got {targets!r}")
         self.scene = scene
+        self.targets = targets
         self.H, self.W = size
         for f in factors:
             if self.H % f or self.W % f:
@@ -114,56 +159,83 @@ class VideoRenderer:
         sample at each of ``offsets [S,2]`` inside each pixel; and the samples
         ``[S,len(pixels),3]``.
 
-        The samples are cast tile by tile: each bundle of the renderer
-        (``render.BUNDLE`` rays) takes every sample of a square block of pixels
-        (``BUNDLE / S`` of them), so that its rays see few objects and few texture
-        kinds, which the renderer then skips."""
+        The samples are cast block by block: each bundle of the renderer
+        (``render.BUNDLE`` rays) takes every sample of ``BUNDLE // S`` pixels that are
+        consecutive along a Z-order curve (an aligned square tile when ``pixels`` is the
+        whole frame; a compact patch of a sparse set), so that its rays see few objects
+        and few texture kinds, which the renderer then skips. A block short of a whole
+        bundle repeats its first ray, so that no bundle straddles two blocks."""
         S, n = len(offsets), len(pixels)
-        per_call = max(1, min(self.chunk, render.BUNDLE) // S)
-        side = 1 << max(0, int(np.log2(per_call)) // 2)  # a power-of-two square tile
+        bundle = min(self.chunk, render.BUNDLE)
+        per_call = max(1, bundle // S)
+        width = -(-S * per_call // bundle) * bundle  # rays per block, whole bundles
         py, px = np.divmod(pixels, self.W)
-        order = np.lexsort((px, py, px // side, py // side))  # tile rows, then within
-        # rays in (block, sample, pixel of the block) order; the last block may be short
+        order = np.argsort(_morton(px, py), kind="stable")
         slots = np.full(-(-n // per_call) * per_call, -1)
         slots[:n] = order
         blocks = slots.reshape(-1, 1, per_call)
-        used = np.broadcast_to(blocks >= 0, (len(blocks), S, per_call))
+        filled = np.where(blocks >= 0, blocks, blocks[..., :1])  # slot 0 is always used
         off = np.asarray(offsets, np.float64)[None, :, None]
-        xy = np.stack([(px[blocks] + off[..., 0]) / self.W, (py[blocks] + off[..., 1]) / self.H],
-                      -1)[used].astype(np.float32)
-        cast = np.zeros(used.shape + (3,), np.float32)
-        cast[used] = self._cast(state, xy, color_only=True)["color"]
+        xy = np.stack([(px[filled] + off[..., 0]) / self.W,
+                       (py[filled] + off[..., 1]) / self.H], -1).reshape(len(blocks), -1, 2)
+        xy = np.concatenate([xy, np.repeat(xy[:, :1], width - xy.shape[1], 1)], 1)
+        cast = self._cast(state, xy.reshape(-1, 2).astype(np.float32), color_only=True)
+        cast = cast["color"].reshape(len(blocks), width, 3)[:, :S * per_call]
+        cast = cast.reshape(len(blocks), S, per_call, 3).transpose(1, 0, 2, 3).reshape(S, -1, 3)
         col = np.empty((S, n, 3), np.float32)
-        col[:, order] = cast.transpose(1, 0, 2, 3).reshape(S, -1, 3)[:, :n]
+        col[:, order] = cast[:, :n]
         return col.mean(0, dtype=np.float64), col
 
     def target(self, state: paths.FrameState):
-        """The ``spp``-sample box-filtered target at ``H x W`` (a stratified grid in
-        every pixel: ``adaptive_target`` measured no cheaper at equal quality,
-        docs/simulator.md)."""
+        """The box-filtered target at ``H x W``: ``spp`` samples on a stratified grid in
+        every pixel, or with ``targets="adaptive"`` the ``adaptive_target``."""
+        if self.targets == "adaptive":
+            return self.adaptive_target(state)[0]
         pixels = np.arange(self.H * self.W)
         col, _ = self._box(state, pixels, self.offsets)
         return col.astype(np.float32).reshape(self.H, self.W, 3)
 
-    def adaptive_target(self, state, base=4, refined=36, threshold=1 / 64):
-        """``base`` samples in every pixel; where they disagree (their range on any
-        tone-mapped channel above ``threshold``), or next to such a pixel, the pixel is
-        rendered again with ``refined`` samples. Returns ``(target [H,W,3], share of
-        pixels refined)``. Measured against ``target`` on a 64-sample reference by
-        ``experiments/adaptive_targets.py``."""
-        pixels = np.arange(self.H * self.W)
-        col, samples = self._box(state, pixels, subsample_offsets(base))
-        t = samples / (1.0 + samples)  # tone-mapped: HDR highlights do not dominate
-        busy = (t.max(0) - t.min(0)).max(-1).reshape(self.H, self.W) > threshold
-        grown = busy.copy()  # and its 8 neighbours: an edge between two samples' cells
-        grown[1:] |= busy[:-1]
-        grown[:-1] |= busy[1:]
-        grown[:, 1:] |= grown[:, :-1].copy()
-        grown[:, :-1] |= grown[:, 1:].copy()
-        refine = np.flatnonzero(grown)
-        if len(refine):
-            col[refine], _ = self._box(state, refine, subsample_offsets(refined))
-        return col.astype(np.float32).reshape(self.H, self.W, 3), len(refine) / col.shape[0]
+    def adaptive_target(self, state, thresholds=ADAPTIVE_THRESHOLDS):
+        """A target that spends samples where they disagree, in three passes:
+        ``ROTATED_GRID``'s 4 samples in every pixel; where their range on any
+        tone-mapped channel exceeds ``thresholds[0]`` (and in those pixels' 8
+        neighbours), the 12 samples that complete the 4x4 grid, so that the pixel is
+        the uniform 16-sample target's; where those 16 exceed ``thresholds[1]``, an 8x8
+        grid of 64 fresh samples. Returns ``(target [H,W,3], samples [H,W])``: each
+        pixel's count of samples averaged (4, 16 or 64; the rays cast are that, plus
+        16 where it is 64). ``experiments/adaptive_targets.py`` measures it against
+        64-sample references whose sample positions neither pattern shares
+        (``jittered_reference``; docs/simulator.md)."""
+        n = self.H * self.W
+        col, s4 = self._box(state, np.arange(n), ROTATED_GRID)
+        count = np.full(n, 4)
+        mid = np.flatnonzero(_grow((_spread(s4) > thresholds[0]).reshape(self.H, self.W)))
+        if len(mid):
+            c12, s12 = self._box(state, mid, _GRID16_REST)
+            col[mid] = (4 * col[mid] + 12 * c12) / 16
+            count[mid] = 16
+            hard = mid[_spread(np.concatenate([s4[:, mid], s12])) > thresholds[1]]
+            if len(hard):
+                col[hard], _ = self._box(state, hard, subsample_offsets(64))
+                count[hard] = 64
+        return (col.astype(np.float32).reshape(self.H, self.W, 3),
+                count.reshape(self.H, self.W))
+
+    def jittered_reference(self, state, cells, seed=0):
+        """A reference target to measure others against: ``cells x cells`` samples per
+        pixel, one at a uniformly random point of each cell, drawn anew in every pixel
+        (so it shares no sample position with a grid pattern, nor a grid's aliasing of
+        periodic detail), box-filtered; float64 ``[H,W,3]``."""
+        rng = np.random.default_rng(seed)
+        jy, jx = np.divmod(np.arange(self.H * self.W, dtype=np.float64), self.W)
+        acc = np.zeros((self.H * self.W, 3))
+        for a in range(cells):
+            for b in range(cells):
+                o = rng.random((self.H * self.W, 2))
+                xy = np.stack([(jx + (a + o[:, 0]) / cells) / self.W,
+                               (jy + (b + o[:, 1]) / cells) / self.H], -1)
+                acc += self._cast(state, xy.astype(np.float32), color_only=True)["color"]
+        return (acc / cells ** 2).reshape(self.H, self.W, 3)
 
     def video(self, split, index, length, progress=None, jitter="thesis", jitter_phase=0,
               hold_from=None):
