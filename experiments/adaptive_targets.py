@@ -48,6 +48,12 @@ def psnr(a, b):
     return float(-10 * np.log10(np.mean((np.asarray(a, np.float64) - b) ** 2)))
 
 
+def rays_per_pixel(count):
+    """Rays cast per pixel from ``adaptive_target``'s sample counts: a 64-sample pixel
+    cast the 16 before them too."""
+    return float(np.where(count == 64, 80, count).mean())
+
+
 def time_ratio(renderer, state, thresholds, repeats):
     """Median over ``repeats`` of the adaptive target's seconds over the uniform's,
     timed one after the other."""
@@ -73,7 +79,7 @@ def scene_row(name, scene, configs, size, split, repeats):
     cells = ["{:.2f} / {:.2f}".format(*rec["uniform16"].values())]
     for c in configs:
         t, count = r.adaptive_target(st, c)
-        rays = float(np.where(count == 64, 80, count).mean())  # 64: after the first 16
+        rays = rays_per_pixel(count)
         got = {k: psnr(t, v) for k, v in refs.items()}
         rec[str(c)] = {**got, "rays_per_pixel": rays,
                        "time_ratio": time_ratio(r, st, c, repeats)}
@@ -96,7 +102,7 @@ def picture(scenes, split, out):
     for row, (name, make, size) in zip(axes, scenes):
         r = VideoRenderer(make(), (size, size), (4,), 16, targets="adaptive")
         target, count = r.adaptive_target(r.timeline(split, 0, 1)[0])
-        rays = np.where(count == 64, 80, count).mean()
+        rays = rays_per_pixel(count)
         row[0].imshow(linear_to_srgb(np.clip(target, 0, 1)), interpolation="nearest")
         row[1].imshow(np.log2(count), cmap="gray", vmin=2, vmax=6, interpolation="nearest")
         row[0].set_ylabel(name, fontsize=9)
