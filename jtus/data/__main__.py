@@ -1,7 +1,7 @@
 """``python -m jtus.data``: generate datasets, import EXR sequences, export videos.
 
     python -m jtus.data generate --preset default --out data/default.h5
-    python -m jtus.data generate --preset diverse --targets adaptive --out data/diverse-a.h5
+    python -m jtus.data generate --preset game --targets adaptive --out data/game-a.h5
     python -m jtus.data import-exr --input renders/lr --target renders/hr --factor 4 \\
         --sidecar renders/spec.json --out data/mine.h5
     python -m jtus.data import-nss --root captures/nss --factor 2 --out data/nss-x2.h5

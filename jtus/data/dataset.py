@@ -2,8 +2,9 @@
 
 Layout (``docs/data.md``)::
 
-    /                  attrs: format="jtus-dataset", version, spp, targets (uniform or
-                              adaptive; spp 0 for adaptive), mip_bias, spp_match,
+    /                  attrs: format="jtus-dataset", version, spp, targets (generated
+                              files: uniform or adaptive, spp 0 for adaptive), mip_bias,
+                              spp_match,
                               conventions (JSON), factors, size
     /{split}/{video}/  attrs: scene, effects (JSON), length, index, jitter_sequence,
                               jitter_phase, near, far (the depth's clip planes)
@@ -95,11 +96,15 @@ def write_video(group, video, factors, spp_match):
         g.create_dataset("jitter", data=v["jitter"].astype(np.float32))
 
 
-def write_root_attrs(fh, size, factors, spp, spp_match, targets="uniform"):
-    """The file's attributes. ``targets="adaptive"`` (4, 16 or 64 samples per pixel,
-    ``jtus.sim.video.VideoRenderer.adaptive_target``) stores ``spp`` 0."""
+def write_root_attrs(fh, size, factors, spp, spp_match, targets=None):
+    """The file's attributes. ``targets``: how the simulator supersampled the targets
+    (``"uniform"``, or ``"adaptive"``: 4, 16 or 64 samples per pixel,
+    ``jtus.sim.video.VideoRenderer.adaptive_target``, stored with ``spp`` 0); an
+    imported file has none."""
+    if targets is not None:
+        fh.attrs["targets"] = targets
     spp = 0 if targets == "adaptive" else spp
-    fh.attrs.update({"format": FORMAT, "version": VERSION, "spp": spp, "targets": targets,
+    fh.attrs.update({"format": FORMAT, "version": VERSION, "spp": spp,
                      "spp_match": spp_match,
                      "mip_bias": 0.0 - 0.5 * math.log2(spp_match), "factors": list(factors),
                      "size": list(size), "conventions": json.dumps(CONVENTIONS)})
