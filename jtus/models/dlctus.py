@@ -196,14 +196,18 @@ def _down(params, x: NetInput, config, dt):
     return zero_part + hist_part + b.astype(dt)
 
 
+def _edge(fn, config: Config):
+    """``fn``, recomputed in the backward pass when ``config.remat_edges``: a training
+    scan then stacks none of its residuals (docs/performance.md, "The scan's buffers")."""
+    return jax.checkpoint(fn) if config.remat_edges else fn
+
+
 def network(params, x: NetInput, config: Config):
     """The network on ``concat(zero_upsample(x.lr), x.hist)`` -> ``[B,H/4,W/4,32]`` in
     the compute dtype (before the shuffle)."""
     dt = compute_dtype(config.dtype)
     params = jax.tree_util.tree_map(lambda p: p.astype(dt), params)
-    down = functools.partial(_down, config=config, dt=dt)
-    if config.remat_edges:
-        down = jax.checkpoint(down)
+    down = _edge(functools.partial(_down, config=config, dt=dt), config)
     return _trunk(params, down(params, x), config)
 
 
@@ -280,8 +284,7 @@ def advance(params, state: State, pre: Prepared, config: Config = Config()):
     with jax.named_scope("network"):
         net = network(params, net_in, config)
     with jax.named_scope("output"):
-        output = functools.partial(_output, config=config)
-        out = (jax.checkpoint(output) if config.remat_edges else output)(jau, hist, net)
+        out = _edge(functools.partial(_output, config=config), config)(jau, hist, net)
     return out[..., :3], State(out)
 
 
