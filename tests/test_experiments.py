@@ -423,3 +423,21 @@ def test_recomputed_edges_stack_fewer_bytes_per_frame():
     kept, recomputed = (sum(r[2] for r in sr.stacked(sr.residuals(4, 32, 1, 2, remat)))
                         for remat in (False, True))
     assert 0 < recomputed < 0.8 * kept
+
+
+def test_interpolated_weights_lie_on_the_line_between_two_checkpoints():
+    """experiments/interpolate_weights.py: alpha 0 and 1 give the two checkpoints, 0.5
+    their mean leaf by leaf; different trees, shapes or an alpha outside [0, 1] are
+    refused naming what differs."""
+    iw = seqdata.load_script("interpolate_weights")
+    a = {"w": np.arange(6.0).reshape(2, 3), "b": np.ones(3)}
+    b = {"w": np.full((2, 3), 10.0), "b": np.zeros(3)}
+    np.testing.assert_array_equal(iw.interpolate(a, b, 0.0)["w"], a["w"])
+    np.testing.assert_array_equal(iw.interpolate(a, b, 1.0)["b"], b["b"])
+    np.testing.assert_allclose(iw.interpolate(a, b, 0.5)["w"], (a["w"] + 10.0) / 2, rtol=0)
+    with pytest.raises(ValueError, match="alpha"):
+        iw.interpolate(a, b, 1.5)
+    with pytest.raises(ValueError, match="different parameters"):
+        iw.interpolate(a, {"w": b["w"]}, 0.5)
+    with pytest.raises(ValueError, match=r"\['b'\] has shape \(3,\)"):
+        iw.interpolate(a, {"w": b["w"], "b": np.zeros(4)}, 0.5)
