@@ -441,3 +441,24 @@ def test_interpolated_weights_lie_on_the_line_between_two_checkpoints():
         iw.interpolate(a, {"w": b["w"]}, 0.5)
     with pytest.raises(ValueError, match=r"\['b'\] has shape \(3,\)"):
         iw.interpolate(a, {"w": b["w"], "b": np.zeros(4)}, 0.5)
+
+
+def test_replayed_first_epoch_takes_the_logged_steps(tiny_data, tmp_path):
+    """experiments/replay_steps.py redraws a run's first-epoch crops from its starting
+    weights: the replayed gradient norms' mean and maximum equal the epoch log's, and
+    a spike is picked out against the median."""
+    rs = seqdata.load_script("replay_steps")
+    config = dataclasses.replace(PRESETS["tiny"], dataset=tiny_data, epochs=1,
+                                 steps_per_epoch=3)
+    train.train_and_evaluate(config, tmp_path / "run", progress=False)
+    with open(tmp_path / "run" / "metrics.json") as fh:
+        logged = json.load(fh)[0]
+    rows = rs.replay(str(tmp_path / "run"))
+    norms = [r[2] for r in rows]
+    assert len(rows) == 3
+    np.testing.assert_allclose(max(norms), logged["grad_norm_max"], rtol=1e-6)
+    np.testing.assert_allclose(np.mean(norms), logged["grad_norm"], rtol=1e-6)
+    frozen = rs.replay(str(tmp_path / "run"), frozen=True)
+    assert frozen[0] == rows[0] and frozen[1][2] != rows[1][2]  # no update: step 2 differs
+    big, median = rs.spikes([(1, 0.0, 1.0), (2, 0.0, 2.0), (3, 0.0, 500.0)], 100.0)
+    assert median == 2.0 and [r[0] for r in big] == [3]
