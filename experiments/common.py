@@ -222,6 +222,25 @@ def second_stage(model, factor, root=ROOT):
     return _saved_run(root, base + ".msgpack", base + "-training.csv", base + ".json")
 
 
+# comparison systems whose design was changed and retrained, each adopted on the
+# validation splits over its earlier rows (docs/comparison.md): model -> (exported
+# weights' base name under experiments/weights/, the table's description of them)
+REDESIGNED = {"mlp": ("mlp-jau", "JAU base, contrast-normalized patches; both families' "
+                                 "holds")}
+
+
+def redesigned(model, factor, root=ROOT):
+    """``(path, rows, config, description)`` of a comparison system's adopted redesign at
+    ``factor`` (``REDESIGNED``: ``experiments/weights/<name>-x<f>`` with its config and
+    per-epoch log), or None where it has none."""
+    if model not in REDESIGNED:
+        return None
+    name, description = REDESIGNED[model]
+    base = f"experiments/weights/{name}-x{factor}"
+    saved = _saved_run(root, base + ".msgpack", base + "-training.csv", base + ".json")
+    return None if saved is None else (*saved, description)
+
+
 def _saved_run(root, path, log, cfg):
     """``(path, rows, config)`` of saved weights with their per-epoch log and config
     (paths relative to ``root``), or None when any of the three is missing."""

@@ -145,6 +145,44 @@ def test_kpn_forward_matches_torch_and_kernels_sum_to_one():
                                    ref_hidden[0].numpy().transpose(1, 2, 0), rtol=0, atol=1e-5)
 
 
+@pytest.mark.parametrize("factor", [2, 4])
+def test_kpn_sample_mask_marks_the_hr_pixel_under_each_sample(factor):
+    """With ``sample_mask`` the last input channel is 1 on exactly one HR pixel of each
+    f x f cell, the one under the jittered sample (x, y = floor(jitter * f)), and the
+    other inputs are those of the KPN without it."""
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=1, B=2, h=4, w=3, factor=factor))
+    fr = seqdata.at(frames, 0)._replace(jitter=jnp.asarray([[0.1, 0.6], [0.9, 0.3]]))
+    plain, masked = kpn.Config(factor=factor), kpn.Config(factor=factor, sample_mask=True)
+    state = kpn.init_state(fr, plain)
+    x0, _, _ = kpn.prepare(state, fr, plain)
+    x1, _, _ = kpn.prepare(state, fr, masked)
+    np.testing.assert_array_equal(np.asarray(x1[..., :-1]), np.asarray(x0))
+    mask = np.asarray(x1[..., -1])
+    for b, (jx, jy) in enumerate(np.asarray(fr.jitter)):
+        want = np.zeros((factor, factor))
+        want[int(jy * factor), int(jx * factor)] = 1.0
+        np.testing.assert_array_equal(mask[b], np.tile(want, (4, 3)))
+
+
+def test_kpn_given_the_sample_mask_starts_as_the_kpn_it_was_made_from():
+    """``add_sample_mask`` gives the first convolution a zero weight for the new channel:
+    the widened network's outputs and state equal the original's; parameters that
+    already take the mask are refused."""
+    frames, _ = _frames(T=2, B=2)
+    plain, masked = kpn.Config(), kpn.Config(sample_mask=True)
+    params = kpn.init(jax.random.PRNGKey(3), plain)
+    wide = kpn.add_sample_mask(params)
+    fr = seqdata.first(frames)
+    s0 = s1 = kpn.init_state(fr, plain)
+    for t in range(2):
+        fr = seqdata.at(frames, t)
+        o0, s0 = kpn.step(params, s0, fr, plain)
+        o1, s1 = kpn.step(wide, s1, fr, masked)
+        np.testing.assert_allclose(np.asarray(o1), np.asarray(o0), rtol=0, atol=1e-6)
+    with pytest.raises(ValueError, match="conv1"):
+        kpn.add_sample_mask(wide)
+
+
 def test_kpn_uses_the_weight_set_of_the_jitter_phase():
     frames, _ = _frames(T=1, B=2)
     config = kpn.Config()
@@ -422,17 +460,22 @@ def _dejitter_numpy(img, jx, jy):
     return out
 
 
-def _mlp_numpy(params, color, depth, f, gamma, slope, near, far, jitter=None, mode="ignore"):
+def _mlp_numpy(params, color, depth, f, gamma, slope, near, far, jitter=None, mode="ignore",
+               base="mean", contrast=False):
     """Spencer's MLP upscaler written out per LR pixel in numpy (float64): the 5x5
     colour patch of each channel and the 5x5 linear-depth patch, both minus their
     means, boosted by sign(r)|r|^(1/gamma); two leaky-ReLU layers; f*f outputs plus the
     colour mean, placed at sub-pixel (dy, dx) = divmod(k, f) (jtus's choices: raster
     patch order, colour before depth, edge-replicated borders). ``mode="input"``: the
     offset of ``jitter [B,2]`` from the pixel centre (x, y) follows as two more inputs;
-    ``"dejitter"``: colour and linear depth are first read at the pixel centres."""
+    ``"dejitter"``: colour and linear depth are first read at the pixel centres.
+    ``contrast``: each mean-removed patch divided by its mean absolute deviation plus
+    1e-4, the outputs multiplied by the colour patch's; ``base="jau"``: the outputs
+    added to jitter-aligned bilinear up-sampling instead of the colour mean."""
     from jtus.data.conventions import linearize_depth
 
     B, h, w, _ = color.shape
+    color_in = color
     lin = linearize_depth(depth[..., 0].astype(np.float64), near, far)
     color = color.astype(np.float64)
     if mode == "dejitter":
@@ -449,20 +492,28 @@ def _mlp_numpy(params, color, depth, f, gamma, slope, near, far, jitter=None, mo
         for i in range(h):
             for j in range(w):
                 dpatch = pd[b, i:i + 5, j:j + 5].reshape(-1)
+                dr = dpatch - dpatch.mean()
                 for c in range(3):
                     cpatch = pc[b, i:i + 5, j:j + 5, c].reshape(-1)
-                    v = np.concatenate([boost(cpatch - cpatch.mean()),
-                                        boost(dpatch - dpatch.mean())]
+                    cr, scale = cpatch - cpatch.mean(), 1.0
+                    if contrast:
+                        scale = np.abs(cr).mean()
+                        cr, dr_ = cr / (scale + 1e-4), dr / (np.abs(dr).mean() + 1e-4)
+                    else:
+                        dr_ = dr
+                    v = np.concatenate([boost(cr), boost(dr_)]
                                        + ([np.asarray(jitter[b], np.float64) - 0.5]
                                           if mode == "input" else []))
                     for k, (W, bias) in enumerate(Ws):
                         v = v @ W + bias
                         if k < len(Ws) - 1:
                             v = np.where(v > 0, v, slope * v)
-                    v = v + cpatch.mean()
+                    v = v * scale + (cpatch.mean() if base == "mean" else 0.0)
                     for s in range(f * f):
                         dy, dx = divmod(s, f)
                         out[b, i * f + dy, j * f + dx, c] = v[s]
+    if base == "jau":
+        out += seqdata.jau_reference(np.asarray(color_in, np.float64), jitter, f)
     return out
 
 
@@ -476,16 +527,61 @@ def test_mlp_forward_and_gamma_against_numpy():
     frames, _ = seqdata.to_jax(seqdata.sequence(T=1, B=2, h=6, w=5))
     frame = seqdata.at(frames, 0)
     frame = frame._replace(jitter=jnp.asarray([[0.125, 0.875], [0.625, 0.25]], jnp.float32))
-    for gamma, jit, slope in ((1.0, "dejitter", 0.01), (2.2, "dejitter", 0.01),
-                              (2.0, "input", 0.2), (1.0, "ignore", 0.01)):
-        config = mlp.Config(factor=4, gamma=gamma, jitter=jit, slope=slope)
+    for gamma, jit, slope, base, contrast in (
+            (1.0, "dejitter", 0.01, "mean", False), (2.2, "dejitter", 0.01, "mean", False),
+            (2.0, "input", 0.2, "mean", False), (1.0, "ignore", 0.01, "mean", False),
+            (1.0, "input", 0.01, "jau", True), (2.0, "dejitter", 0.01, "jau", False),
+            (1.0, "ignore", 0.01, "mean", True)):
+        config = mlp.Config(factor=4, gamma=gamma, jitter=jit, slope=slope, base=base,
+                            contrast=contrast)
         params = mlp.init(jax.random.PRNGKey(1), config)
+        # a trained output layer (the JAU base starts it at zero)
+        params["layers"][-1] = mlp.init(jax.random.PRNGKey(2))["layers"][-1]
         got = np.asarray(mlp.step(params, (), frame, config)[0])
         want = _mlp_numpy(params, np.asarray(frame.color), np.asarray(frame.depth), 4, gamma,
-                          config.slope, config.near, config.far, np.asarray(frame.jitter), jit)
-        np.testing.assert_allclose(got, want, rtol=0, atol=5e-7)  # float32: 2.1e-7 measured
+                          config.slope, config.near, config.far, np.asarray(frame.jitter), jit,
+                          base, contrast)
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-6,  # float32: 2.1e-7 measured
+                                   err_msg=f"{gamma} {jit} {base} {contrast}")
     with pytest.raises(ValueError, match="jitter"):
         mlp.Config(jitter="centre")
+    with pytest.raises(ValueError, match="base"):
+        mlp.Config(base="bicubic")
+
+
+@pytest.mark.parametrize("jit", ["ignore", "input", "dejitter"])
+def test_untrained_mlp_on_the_jau_base_is_jau(jit):
+    """With ``base="jau"`` the output layer starts at zero, so the untrained upscaler is
+    jitter-aligned bilinear up-sampling exactly, bit for bit."""
+    from jtus.models import jau
+
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=1, B=2, h=6, w=5))
+    frame = seqdata.at(frames, 0)._replace(jitter=jnp.asarray([[0.125, 0.875], [0.625, 0.25]]))
+    config = mlp.Config(factor=4, jitter=jit, base="jau", contrast=True)
+    got = mlp.step(mlp.init(jax.random.PRNGKey(1), config), (), frame, config)[0]
+    want = jau.step({}, (), frame, jau.Config(factor=4))[0]
+    np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+
+
+def test_contrast_normalized_mlp_scales_its_correction_with_the_contrast(monkeypatch):
+    """With ``contrast``, colour a * c + d upscales to a * (the upscale of c) + d (exactly
+    but for rounding once the ``EPS`` added to the deviation is 0), and a flat frame
+    comes out flat at any brightness, whatever the weights."""
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=1, B=2, h=6, w=5))
+    frame = seqdata.at(frames, 0)._replace(jitter=jnp.asarray([[0.125, 0.875], [0.625, 0.25]]))
+    config = mlp.Config(factor=4, jitter="input", base="jau", contrast=True)
+    params = mlp.init(jax.random.PRNGKey(1), config)
+    params["layers"][-1] = mlp.init(jax.random.PRNGKey(2))["layers"][-1]
+    with monkeypatch.context() as m:
+        m.setattr(mlp, "EPS", 0.0)
+        out = np.asarray(mlp.step(params, (), frame, config)[0])
+        for a, d in ((0.01, 0.002), (3.0, -0.5)):
+            moved = np.asarray(mlp.step(params, (), frame._replace(color=a * frame.color + d),
+                                        config)[0])
+            np.testing.assert_allclose(moved, a * out + d, rtol=0, atol=1e-6 * max(a, 1))
+    flat = frame._replace(color=jnp.full_like(frame.color, 0.003))
+    np.testing.assert_allclose(np.asarray(mlp.step(params, (), flat, config)[0]), 0.003,
+                               rtol=0, atol=1e-9)
 
 
 @pytest.mark.parametrize("jit", ["ignore", "input", "dejitter"])

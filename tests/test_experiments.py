@@ -7,10 +7,12 @@ import json
 import os
 import re
 
+import jax
 import numpy as np
 import pytest
 
-from jtus import loading, recipe, train
+from jtus import checkpoint, loading, recipe, train
+from jtus import config as config_mod
 from jtus.config import PRESETS
 from tests import seqdata
 
@@ -193,6 +195,25 @@ def test_second_stage_needs_weights_config_and_log(tmp_path):
     assert path == "experiments/weights/kpn-mix-x4.msgpack" and rows[0]["step"] == "100"
     assert cfg["init_from"] == "experiments/weights/kpn-x4.msgpack"
     assert common.second_stage("kpn", 2, str(tmp_path)) is None
+
+
+def test_redesign_needs_weights_config_and_log(tmp_path, monkeypatch):
+    """experiments/common.redesigned: a system's adopted redesign is
+    ``experiments/weights/<name>-x<f>`` (``REDESIGNED``) with its config and log beside
+    it, described for the table; a missing file, or a system without one, gives None."""
+    common = seqdata.load_script("common")
+    monkeypatch.setattr(common, "REDESIGNED", {"kpn": ("kpn-new", "a new design")})
+    base = tmp_path / "experiments" / "weights"
+    base.mkdir(parents=True)
+    (base / "kpn-new-x4.msgpack").write_bytes(b"w")
+    (base / "kpn-new-x4.json").write_text(json.dumps({"config": {"epochs": 1}}))
+    assert common.redesigned("kpn", 4, str(tmp_path)) is None  # no log
+    (base / "kpn-new-x4-training.csv").write_text("epoch,step,val_psnr,seconds\n1,100,30,9\n")
+    path, rows, cfg, what = common.redesigned("kpn", 4, str(tmp_path))
+    assert (path, rows[0]["step"], cfg, what) == (
+        "experiments/weights/kpn-new-x4.msgpack", "100", {"epochs": 1}, "a new design")
+    assert common.redesigned("kpn", 2, str(tmp_path)) is None
+    assert common.redesigned("nsrr", 4, str(tmp_path)) is None
 
 
 def test_comparison_table_systems_and_targets():
@@ -441,6 +462,38 @@ def test_interpolated_weights_lie_on_the_line_between_two_checkpoints():
         iw.interpolate(a, {"w": b["w"]}, 0.5)
     with pytest.raises(ValueError, match=r"\['b'\] has shape \(3,\)"):
         iw.interpolate(a, {"w": b["w"], "b": np.zeros(4)}, 0.5)
+
+
+def test_kpn_checkpoint_gains_the_sample_mask_as_a_no_op(tmp_path):
+    """experiments/kpn_sample_mask.py writes a KPN checkpoint widened for the sample-mask
+    input, with ``sample_mask`` in its config, that loads and computes what the original
+    computes; another model's checkpoint, or one already widened, is refused by name."""
+    from jtus.config import Config
+    from jtus.models import kpn
+
+    ks = seqdata.load_script("kpn_sample_mask")
+    cfg = Config(model="kpn", factor=2)
+    params = kpn.init(jax.random.PRNGKey(0), kpn.Config(factor=2))
+    src = checkpoint.write_params(str(tmp_path / "kpn"), params, config_mod.to_json(cfg))
+    ks.main([src, "--out", str(tmp_path / "wide")])
+    wide, wcfg = loading.load_params(str(tmp_path / "wide.msgpack"))
+    assert dict(wcfg.model_overrides) == {"sample_mask": True}
+    model = recipe.model_for(wcfg)
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=1, B=1, h=4, w=4, factor=2))
+    fr = seqdata.at(frames, 0)
+    want = kpn.step(params, kpn.init_state(fr, kpn.Config(factor=2)), fr,
+                    kpn.Config(factor=2))[0]
+    got = model.step(wide, model.init_state(fr), fr)[0]
+    np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=0, atol=1e-6)
+    with pytest.raises(SystemExit, match="already takes the sample mask"):
+        ks.main([str(tmp_path / "wide.msgpack"), "--out", str(tmp_path / "again")])
+    from jtus.models import mlp
+    other = checkpoint.write_params(str(tmp_path / "mlp"), mlp.init(
+        jax.random.PRNGKey(0), mlp.Config(factor=2)), config_mod.to_json(
+        Config(model="mlp", factor=2)))
+    with pytest.raises(SystemExit, match="expected a kpn checkpoint"):
+        ks.main([other, "--out", str(tmp_path / "no")])
+    assert not (tmp_path / "again.msgpack").exists() and not (tmp_path / "no.json").exists()
 
 
 def test_replayed_first_epoch_takes_the_logged_steps(tiny_data, tmp_path):

@@ -12,6 +12,12 @@ convolutions and the kernel layer) switch between per-jitter-phase weight sets: 
 ``k`` is the index of the frame's jitter in the sequence, so the operation count does
 not grow with the number of phases.
 
+Adaptation to up-sampling (``sample_mask``): the JAU colour is smooth and a
+convolution is translation-invariant, so nothing in the paper's input tells the network
+which HR pixels hold this frame's samples, which is what jitter-aware accumulation (TUS's
+box β) needs. With ``sample_mask`` one more input channel is 1 on the HR pixel under
+each jittered sample and 0 elsewhere (``sampling.zero_upsample`` of ones).
+
 The state is ``[B,H,W,8]``: the output RGB and the hidden channels.
 """
 
@@ -41,8 +47,12 @@ class Config:
     hdr: bool = False        # trained on tone-mapped HDR colour (base.exposed_parts)
     width: int = 12
     jitter: str = "thesis"   # the sequence whose index selects the weight set
+    sample_mask: bool = False  # one more input: 1 where this frame's sample lands
     near: float = NEAR
     far: float = FAR
+
+    def in_channels(self):
+        return IN_CHANNELS + int(self.sample_mask)
 
     def phases(self):
         return sampling.jitter_sequence(self.jitter, self.factor)
@@ -62,11 +72,24 @@ def init(key, config: Config = Config()):
                 for kk in jax.random.split(k, n)]
         return jax.tree_util.tree_map(lambda *x: jnp.stack(x), *sets)
 
-    return {"conv1": layers.torch_uniform_init(ks[0], (3, 3, IN_CHANNELS, w)),
+    return {"conv1": layers.torch_uniform_init(ks[0], (3, 3, config.in_channels(), w)),
             "conv2": switched(ks[1], 3, w, w),
             "conv3": switched(ks[2], 5, w, w),
             "hidden": layers.torch_uniform_init(ks[3], (1, 1, w, HIDDEN)),
             "kernel": switched(ks[4], 5, w, 2 * K * K)}
+
+
+def add_sample_mask(params):
+    """Parameters of a KPN without ``sample_mask`` for one with it that computes the
+    same outputs: the first convolution gains a zero weight for the mask channel (the
+    last input), so training starts from what the network already does."""
+    conv1 = params["conv1"]
+    kernel = conv1["kernel"]
+    if kernel.shape[2] != IN_CHANNELS:
+        raise ValueError(f"params: conv1 takes {kernel.shape[2]} input channels, expected "
+                         f"{IN_CHANNELS} (a KPN without the sample mask)")
+    zero = jnp.zeros(kernel.shape[:2] + (1,) + kernel.shape[3:], kernel.dtype)
+    return {**params, "conv1": {**conv1, "kernel": jnp.concatenate([kernel, zero], 2)}}
 
 
 def phase_index(jitter, config: Config):
@@ -99,7 +122,10 @@ def prepare(state: State, frame: Frame, config: Config):
     # a reset frame's history is the fresh input, unwarped (base.reset_select)
     fresh = jnp.concatenate([jau, jnp.zeros(jau.shape[:-1] + (HIDDEN,), jnp.float32)], -1)
     rep = reset_select(frame.reset, fresh, rep)
-    return jnp.concatenate([jau, depth, mv, rep], -1), jau, rep
+    parts = [jau, depth, mv, rep]
+    if config.sample_mask:
+        parts.append(sampling.zero_upsample(jnp.ones(frame.depth.shape, jnp.float32), jit, f))
+    return jnp.concatenate(parts, -1), jau, rep
 
 
 def kernels(params, x, phase):
@@ -149,7 +175,7 @@ def cost(config: Config, H, W) -> Cost:
     apply = px * (n * 3 * 2 + n * 4)  # the two kernels on 3 channels, softmax
     warp = px * (16 * 8 * 2 + 20) + px * 4 * 3 * 2
     compulsory = 4 * (lr * 6 + 2 * px * 8 + px * 3)
-    act = 4 * 2 * px * (IN_CHANNELS + 3 * config.width + n + HIDDEN)
+    act = 4 * 2 * px * (config.in_channels() + 3 * config.width + n + HIDDEN)
     return Cost(net + apply + warp, net, compulsory, compulsory + act)
 
 
@@ -160,5 +186,5 @@ SPECS = (Spec("kpn", make, lambda f: Config(factor=f), cost, trainable=True, los
 
 
 
-__all__ = ["Config", "SPECS", "State", "cost", "init", "init_state", "kernels", "make",
-           "phase_index", "prepare", "step"]
+__all__ = ["Config", "SPECS", "State", "add_sample_mask", "cost", "init", "init_state",
+           "kernels", "make", "phase_index", "prepare", "step"]
