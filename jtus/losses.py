@@ -35,7 +35,7 @@ import jax.numpy as jnp
 
 from jtus import metrics, perceptual, sampling
 
-NAMES = ("l1", "mse", "salvi", "st", "st-linear", "ssim", "ssim-srgb", "kpn")
+NAMES = ("l1", "mse", "log-mse", "salvi", "st", "st-linear", "ssim", "ssim-srgb", "kpn")
 
 
 def warp_previous(prev, motion, factor, method):
@@ -63,6 +63,17 @@ def _l1(out, target, *_):
 
 def _mse(out, target, *_):
     return jnp.mean(jnp.square(out - target))
+
+
+LOG_MSE_FLOOR = 1e-7  # added to each crop's MSE before the log: PSNR 70 dB
+
+
+def _log_mse(out, target, *_):
+    """The mean over the batch of ``log(MSE + LOG_MSE_FLOOR)`` per crop: minus its PSNR up
+    to scale and offset, so each crop's error counts relative to itself, as in a mean
+    of per-frame PSNRs, and a dark crop weighs as much as a bright one."""
+    per_crop = jnp.mean(jnp.square(out - target), axis=tuple(range(1, out.ndim)))
+    return jnp.mean(jnp.log(per_crop + LOG_MSE_FLOOR))
 
 
 def _ssim(out, target, *_):
@@ -102,7 +113,7 @@ def make(name, factor, theta=0.5, method="bilinear", perceptual_weights=None,
     """The loss ``name`` (one of ``NAMES``) for up-sampling factor ``factor``; with
     ``perceptual_weights`` (an ``.npz`` of VGG-16, see ``jtus.perceptual``) the
     perceptual term is added with weight ``perceptual_weight``."""
-    plain = {"l1": _l1, "mse": _mse, "ssim": _ssim, "ssim-srgb": _ssim_srgb}
+    plain = {"l1": _l1, "mse": _mse, "log-mse": _log_mse, "ssim": _ssim, "ssim-srgb": _ssim_srgb}
     if name in plain:
         base = plain[name]
     elif name in ("salvi", "st", "st-linear"):

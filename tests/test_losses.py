@@ -193,6 +193,34 @@ def test_mse_and_ssim_losses_against_numpy_and_skimage():
         pytest.approx(0.0, abs=1e-6)
 
 
+def test_log_mse_loss_is_the_mean_per_crop_psnr_up_to_scale():
+    """``log-mse``: the batch mean of log(each crop's MSE + 1e-7), against numpy and
+    scikit-image's PSNR (-10 log10 MSE at data range 1) in float64 (1e-5); scaling one
+    crop's error by k moves the loss by log(k^2) / B whatever the crop's brightness, so a
+    dark crop's error counts as much as a bright one's."""
+    from skimage.metrics import peak_signal_noise_ratio
+
+    rng = np.random.default_rng(4)
+    tgt = rng.uniform(size=(3, 10, 12, 3)) * np.array([1.0, 0.01, 0.3])[:, None, None, None]
+    err = rng.normal(size=tgt.shape) * 0.02
+    loss = losses.make("log-mse", 4)
+    rest = (None, None, None, None)
+    got = float(loss(jnp.asarray(tgt + err, jnp.float32), jnp.asarray(tgt, jnp.float32), *rest))
+    want = np.mean(np.log((err ** 2).mean(axis=(1, 2, 3)) + 1e-7))
+    np.testing.assert_allclose(got, want, rtol=1e-5)
+    psnr = np.mean([peak_signal_noise_ratio(t, t + e, data_range=1) for t, e in zip(tgt, err)])
+    big = np.mean(np.log((err ** 2).mean(axis=(1, 2, 3))))  # without the floor
+    np.testing.assert_allclose(-10 / np.log(10) * big, psnr, rtol=1e-9)
+    for b in range(3):  # the same relative change for the dark crop as the bright one
+        scaled = err.copy()
+        scaled[b] *= 10.0
+        moved = float(loss(jnp.asarray(tgt + scaled, jnp.float32), jnp.asarray(tgt, jnp.float32),
+                           *rest))
+        ratio = ((err[b] * 10) ** 2).mean() + 1e-7, (err[b] ** 2).mean() + 1e-7
+        np.testing.assert_allclose(moved - got, np.log(ratio[0] / ratio[1]) / 3, rtol=1e-4)
+        np.testing.assert_allclose(moved - got, np.log(100.0) / 3, rtol=1e-3)
+
+
 def test_ssim_srgb_loss_is_ssim_of_the_srgb_coded_images():
     """``ssim-srgb``: 1 - SSIM (scikit-image, the metric's settings) of the images
     through the sRGB transfer function, which matches the numpy encoder of the image

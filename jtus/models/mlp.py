@@ -96,8 +96,8 @@ def _deviation(r):
 
 def patches(frame: Frame, config: Config):
     """The network's input ``[B,h,w,3,n]`` per LR pixel and colour channel, the colour
-    patches' means ``[B,h,w,3,1]`` and the scale its output is multiplied by (1, or
-    with ``contrast`` the colour patch's mean absolute deviation)."""
+    patches' means ``[B,h,w,3,1]`` and, with ``contrast``, the colour patches' mean
+    absolute deviation, which the output is multiplied by (ones without)."""
     color = frame.color.astype(jnp.float32)
     jit = frame.jitter.astype(jnp.float32)
     depth = linearize_depth(frame.depth.astype(jnp.float32), config.near, config.far)
@@ -127,7 +127,8 @@ def step(params, state, frame: Frame, config: Config = Config()):
         x = x @ lyr["kernel"] + lyr["bias"]
         if i < len(params["layers"]) - 1:
             x = jax.nn.leaky_relu(x, config.slope)
-    x = x * scale
+    if config.contrast:
+        x = x * scale
     out = x + cmean if config.base == "mean" else x     # [B,h,w,3,f*f]
     b, h, w = frame.color.shape[:3]
     out = out.reshape(b, h, w, 3 * config.factor ** 2)  # channel c*f*f + sub-pixel
