@@ -218,8 +218,7 @@ def second_stage(model, factor, root=ROOT):
     ``experiments/weights/<model>-mix-x<f>`` (``.msgpack``, ``.json`` whose
     ``init_from`` names the first stage, ``-training.csv``); None where none was
     adopted."""
-    base = f"experiments/weights/{model}-mix-x{factor}"
-    return _saved_run(root, base + ".msgpack", base + "-training.csv", base + ".json")
+    return _exported(root, f"{model}-mix", factor)
 
 
 # comparison systems whose design was changed and retrained, each adopted on the
@@ -236,9 +235,15 @@ def redesigned(model, factor, root=ROOT):
     if model not in REDESIGNED:
         return None
     name, description = REDESIGNED[model]
-    base = f"experiments/weights/{name}-x{factor}"
-    saved = _saved_run(root, base + ".msgpack", base + "-training.csv", base + ".json")
+    saved = _exported(root, name, factor)
     return None if saved is None else (*saved, description)
+
+
+def _exported(root, name, factor):
+    """``_saved_run`` of ``experiments/weights/<name>-x<factor>`` as
+    ``loading.export_params`` writes it (``.msgpack``, ``-training.csv``, ``.json``)."""
+    base = f"experiments/weights/{name}-x{factor}"
+    return _saved_run(root, base + ".msgpack", base + "-training.csv", base + ".json")
 
 
 def _saved_run(root, path, log, cfg):
@@ -267,10 +272,8 @@ def dlctus_run(factor, label="dlctus-game", root=ROOT):
     ``factor``: its exported weights (``experiments/weights/dlctus-<name>-x<f>``) or its
     committed checkpoint (``experiments/checkpoints/<folder>-x<f>/``); None if neither."""
     name, folder = DLCTUS_RUNS[label]
-    weights = f"experiments/weights/dlctus-{name}-x{factor}"
     ckpt = f"experiments/checkpoints/{folder}-x{factor}"
-    return (_saved_run(root, weights + ".msgpack", weights + "-training.csv",
-                       weights + ".json")
+    return (_exported(root, f"dlctus-{name}", factor)
             or _saved_run(root, f"{ckpt}/checkpoint.msgpack", f"{ckpt}/metrics.csv",
                           f"{ckpt}/config.json"))
 
