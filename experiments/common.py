@@ -225,7 +225,9 @@ def second_stage(model, factor, root=ROOT):
 # validation splits over its earlier rows (docs/comparison.md): model -> (exported
 # weights' base name under experiments/weights/, the table's description of them)
 REDESIGNED = {"mlp": ("mlp-jau", "JAU base, contrast-normalized patches; both families' "
-                                 "holds")}
+                                 "holds"),
+              "kpn": ("kpn-samples", "the current kernel mixes the samples themselves; "
+                                     "diverse")}
 
 
 def redesigned(model, factor, root=ROOT):

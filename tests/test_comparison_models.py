@@ -183,6 +183,68 @@ def test_kpn_given_the_sample_mask_starts_as_the_kpn_it_was_made_from():
         kpn.add_sample_mask(wide)
 
 
+@pytest.mark.parametrize("factor", [2, 4])
+def test_kpn_samples_mix_weighs_only_the_taps_that_hold_a_sample(factor):
+    """``current="samples"``: every 5x5 window off the border holds at least one sample
+    (at the border the history taps alone may carry the softmax); the current
+    kernel's weight is exactly 0 on taps without one; the 50 weights sum to one; the
+    output is the weighted sum of the placed samples and the history; the gradient
+    through the masked softmax is finite."""
+    frames, _ = _frames(T=1, B=2, h=8 * 4 // factor, factor=factor)
+    config = kpn.Config(factor=factor, current="samples")
+    params = kpn.init(jax.random.PRNGKey(5), config)
+    fr = seqdata.first(frames)
+    state = kpn.init_state(fr, config)
+    x, cur, rep = kpn.prepare(state, fr, config)
+    assert x.shape[-1] == config.in_channels() == kpn.IN_CHANNELS + 4
+    valid = np.asarray(kpn.valid_taps(fr, config))
+    n = kpn.K * kpn.K
+    assert valid[:, 2:-2, 2:-2, :n].sum(-1).min() >= 1 and valid[..., n:].all()
+    # at 4x a border window may hold none (the jitter cell past its three columns)
+    assert (valid[..., :n].sum(-1).min() == 0) == (factor == 4)
+    wts, _ = kpn.kernels(params, x, kpn.phase_index(fr.jitter, config), jnp.asarray(valid))
+    wts = np.asarray(wts)
+    assert np.all(wts[..., :n][~valid[..., :n]] == 0.0)
+    np.testing.assert_allclose(wts.sum(-1), 1.0, rtol=0, atol=1e-6)
+    near = lambda img: np.asarray(kpn.sampling.neighbourhood(img, kpn.K, mode="constant"))  # noqa: E731
+    want = ((near(cur) * wts[:, :, :, None, :n]).sum(-1)
+            + (near(rep[..., :3]) * wts[:, :, :, None, n:]).sum(-1))
+    out, _ = kpn.step(params, state, fr, config)
+    np.testing.assert_allclose(np.asarray(out), want, rtol=0, atol=1e-6)
+    grad = jax.grad(lambda p: kpn.step(p, state, fr, config)[0].sum())(params)
+    assert all(np.isfinite(np.asarray(g)).all() for g in jax.tree_util.tree_leaves(grad))
+
+
+def test_kpn_samples_mix_starts_as_jitter_aware_accumulation():
+    """With the kernel layer's weights at zero only its starting bias
+    (``SAMPLES_PRIOR``) speaks: where a sample lies on the pixel itself it gets weight
+    1 / (1 + 9 + the other taps' e^-5 each) and the history's centre 9 times that;
+    elsewhere the history's centre takes over 80%."""
+    frames, _ = _frames(T=1, B=1, h=8)
+    config = kpn.Config(current="samples")
+    params = kpn.init(jax.random.PRNGKey(6), config)
+    params["kernel"]["kernel"] = jnp.zeros_like(params["kernel"]["kernel"])
+    fr = seqdata.first(frames)
+    x, _, _ = kpn.prepare(kpn.init_state(fr, config), fr, config)
+    valid = kpn.valid_taps(fr, config)
+    wts, _ = kpn.kernels(params, x, kpn.phase_index(fr.jitter, config), valid)
+    wts, valid = np.asarray(wts), np.asarray(valid)
+    n, c = kpn.K * kpn.K, kpn.K * kpn.K // 2
+    on = valid[..., c]
+    others = valid.sum(-1) - 2
+    want = 1.0 / (1.0 + 9.0 + others * np.exp(-5.0))
+    np.testing.assert_allclose(wts[..., c][on], want[on], rtol=1e-5)
+    np.testing.assert_allclose(wts[..., n + c][on], 9.0 * want[on], rtol=1e-5)
+    assert wts[..., n + c][~on].min() > 0.8
+    assert 0 < on.mean() < 1
+
+
+def test_kpn_config_names_a_bad_current_colour():
+    with pytest.raises(ValueError, match=r"^current: expected one of \('jau', 'samples'\), "
+                                         r"got 'sparse'$"):
+        kpn.Config(current="sparse")
+
+
 def test_kpn_uses_the_weight_set_of_the_jitter_phase():
     frames, _ = _frames(T=1, B=2)
     config = kpn.Config()
@@ -269,12 +331,14 @@ def test_every_registered_model_has_a_cost_and_its_hooks():
     assert models.spec("kpn").loss == "kpn"
 
 
+@pytest.mark.parametrize("current", ["jau", "samples"])
 @pytest.mark.parametrize("factor", [4, 2])
-def test_kpn_matches_an_independent_torch_kpn(factor):
+def test_kpn_matches_an_independent_torch_kpn(factor, current):
     """jtus's KPN against jtus/reference/torch_kpn.py (its own parameter layout, Catmull-Rom,
     input preparation and colour mix, from Herveau et al. and docs/comparison.md) over
     6 frames with motion, a camera cut in one element and the weight set of each
-    frame's jitter phase."""
+    frame's jitter phase; with either colour for the current kernel (``samples``: the
+    placed samples, the softmax over the taps that hold one)."""
     import torch
 
     from jtus import models, rollout
@@ -283,10 +347,10 @@ def test_kpn_matches_an_independent_torch_kpn(factor):
     frames, _ = seqdata.sequence(T=6, B=2, h=24 // factor, w=32 // factor, factor=factor,
                                  seed=11, max_motion=1.5, reset_at=(3, 1))
     frames.reset[0] = True
-    model = models.build("kpn", factor)
+    model = models.build("kpn", factor, current=current)
     phases = np.asarray(model.config.phases(), np.float32)
     torch.manual_seed(0)
-    net = torch_kpn.KPN(len(phases))
+    net = torch_kpn.KPN(len(phases), samples=current == "samples")
     params = jax.tree_util.tree_map(jnp.asarray, torch_kpn.to_jtus(net))
     jf = seqdata.to_jax(frames)
     outs, final = jax.jit(lambda p, s, f: rollout.outputs(model.step, p, s, f))(
@@ -298,9 +362,9 @@ def test_kpn_matches_an_independent_torch_kpn(factor):
             out, fb = torch_kpn.step(net, fb, nchw(frames.color[t]), nchw(frames.depth[t]),
                                      nchw(frames.motion[t]), torch.from_numpy(frames.jitter[t]),
                                      torch.from_numpy(frames.reset[t]), torch.from_numpy(phases),
-                                     factor)
+                                     factor, samples=current == "samples")
             ref.append(out.numpy().transpose(0, 2, 3, 1))
-    # float32; measured max 3.0e-7 (both factors)
+    # float32; measured max 3.0e-7 (both factors, both current colours)
     np.testing.assert_allclose(np.asarray(outs), np.stack(ref), rtol=0, atol=1e-6)
     np.testing.assert_allclose(np.asarray(final.history), fb.numpy().transpose(0, 2, 3, 1),
                                rtol=0, atol=1e-6)

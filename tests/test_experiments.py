@@ -216,6 +216,22 @@ def test_redesign_needs_weights_config_and_log(tmp_path, monkeypatch):
     assert common.redesigned("nsrr", 4, str(tmp_path)) is None
 
 
+@pytest.mark.parametrize("factor", [4, 2])
+def test_adopted_redesigns_load_as_the_model_they_were_trained_as(factor):
+    """Every ``REDESIGNED`` entry's exported weights exist at both factors and load with
+    their run config into the model they name, its config overrides included (the
+    parameter tree equals a fresh ``init``'s, shape for shape), so the table scores what
+    was trained."""
+    common = seqdata.load_script("common")
+    for model, (name, _) in common.REDESIGNED.items():
+        path, rows, _, _ = common.redesigned(model, factor)
+        params, cfg = loading.load_params(os.path.join(common.ROOT, path))
+        assert (cfg.model, cfg.factor) == (model, factor) and rows
+        fresh = recipe.model_for(cfg).init(jax.random.PRNGKey(0))
+        shapes = lambda t: jax.tree_util.tree_map(np.shape, t)  # noqa: E731
+        assert shapes(params) == shapes(fresh), name
+
+
 def test_comparison_table_systems_and_targets():
     """experiments/comparison_table.py: every system is listed at both factors with a
     spec that loads (or none, when it has no training on the diverse data), and the

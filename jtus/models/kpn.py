@@ -18,12 +18,25 @@ which HR pixels hold this frame's samples, which is what jitter-aware accumulati
 box β) needs. With ``sample_mask`` one more input channel is 1 on the HR pixel under
 each jittered sample and 0 elsewhere (``sampling.zero_upsample`` of ones).
 
+``current="samples"`` goes further: the current kernel mixes this frame's samples
+themselves, each at the HR pixel under it (``sampling.zero_upsample``), instead of the
+smooth JAU colour. The mask and the placed samples are inputs too, and the softmax
+runs over the taps that hold a sample plus the 25 history taps, so a pixel's output
+is a normalized mix of the samples near it and of its history: the jitter-aware
+accumulation of TUS, with weights the network predicts. The kernel layer's bias then
+starts there (``SAMPLES_PRIOR``): the history's centre tap ``log 9`` above a sample
+on the pixel itself, every other tap 5 below it, so that an untrained network
+accumulates each pixel's samples with weight about 0.1 and keeps its history
+elsewhere. At 2x and 4x every 5x5 window off the border holds at least one sample;
+the 25 history taps keep the softmax defined where a border window holds none.
+
 The state is ``[B,H,W,8]``: the output RGB and the hidden channels.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import NamedTuple
 
 import jax
@@ -39,6 +52,10 @@ HIDDEN = 5
 K = 5  # kernel size
 IN_CHANNELS = 3 + 1 + 2 + 3 + HIDDEN
 SWITCHED = ("conv2", "conv3", "kernel")
+CURRENT = ("jau", "samples")
+# current="samples": the kernel layer's starting bias (logits) for the history's centre
+# tap, a sample on the pixel itself, and every other tap (module docstring)
+SAMPLES_PRIOR = {"history_centre": math.log(9.0), "sample_centre": 0.0, "other": -5.0}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,11 +65,20 @@ class Config:
     width: int = 12
     jitter: str = "thesis"   # the sequence whose index selects the weight set
     sample_mask: bool = False  # one more input: 1 where this frame's sample lands
+    current: str = "jau"     # what the current kernel mixes: "jau" or "samples"
     near: float = NEAR
     far: float = FAR
 
+    def __post_init__(self):
+        if self.current not in CURRENT:
+            raise ValueError(f"current: expected one of {CURRENT}, got {self.current!r}")
+
+    def marks_samples(self):
+        """Whether the input holds the sample mask (``sample_mask`` or the samples mix)."""
+        return self.sample_mask or self.current == "samples"
+
     def in_channels(self):
-        return IN_CHANNELS + int(self.sample_mask)
+        return IN_CHANNELS + int(self.marks_samples()) + 3 * int(self.current == "samples")
 
     def phases(self):
         return sampling.jitter_sequence(self.jitter, self.factor)
@@ -76,7 +102,18 @@ def init(key, config: Config = Config()):
             "conv2": switched(ks[1], 3, w, w),
             "conv3": switched(ks[2], 5, w, w),
             "hidden": layers.torch_uniform_init(ks[3], (1, 1, w, HIDDEN)),
-            "kernel": switched(ks[4], 5, w, 2 * K * K)}
+            "kernel": _kernel_bias(switched(ks[4], 5, w, 2 * K * K), config)}
+
+
+def _kernel_bias(kernel, config: Config):
+    """The kernel layer, its bias set to ``SAMPLES_PRIOR`` for the samples mix."""
+    if config.current != "samples":
+        return kernel
+    centre = K * K // 2
+    bias = jnp.full((2 * K * K,), SAMPLES_PRIOR["other"], jnp.float32)
+    bias = bias.at[centre].set(SAMPLES_PRIOR["sample_centre"])
+    bias = bias.at[K * K + centre].set(SAMPLES_PRIOR["history_centre"])
+    return {**kernel, "bias": jnp.broadcast_to(bias, kernel["bias"].shape)}
 
 
 def add_sample_mask(params):
@@ -123,31 +160,54 @@ def prepare(state: State, frame: Frame, config: Config):
     fresh = jnp.concatenate([jau, jnp.zeros(jau.shape[:-1] + (HIDDEN,), jnp.float32)], -1)
     rep = reset_select(frame.reset, fresh, rep)
     parts = [jau, depth, mv, rep]
-    if config.sample_mask:
-        parts.append(sampling.zero_upsample(jnp.ones(frame.depth.shape, jnp.float32), jit, f))
-    return jnp.concatenate(parts, -1), jau, rep
+    if config.marks_samples():
+        parts.append(sample_mask(frame, config))
+    cur = jau
+    if config.current == "samples":
+        cur = sampling.zero_upsample(frame.color.astype(jnp.float32), jit, f)
+        parts.append(cur)
+    return jnp.concatenate(parts, -1), cur, rep
 
 
-def kernels(params, x, phase):
-    """``(weights [B,H,W,2*K*K] summing to one, hidden [B,H,W,5])``."""
+def sample_mask(frame: Frame, config: Config):
+    """``[B,H,W,1]``: 1 on the HR pixel under each of this frame's samples, else 0."""
+    return sampling.zero_upsample(jnp.ones(frame.depth.shape, jnp.float32),
+                                  frame.jitter.astype(jnp.float32), config.factor)
+
+
+def _near(img):
+    """Zero-padded KxK neighbourhoods in raster order, ``[B,H,W,C,K*K]``."""
+    return sampling.neighbourhood(img, K, mode="constant")
+
+
+def kernels(params, x, phase, valid=None):
+    """``(weights [B,H,W,2*K*K] summing to one, hidden [B,H,W,5])``; ``valid``
+    (``[B,H,W,2*K*K]`` booleans, optional) leaves taps out of the softmax (weight 0)."""
     relu = jax.nn.relu
     h = relu(layers.conv_same(x, params["conv1"]))
     h = relu(_switched_conv(h, params["conv2"], phase))
     h = relu(_switched_conv(h, params["conv3"], phase))
     hidden = layers.conv_same(h, params["hidden"])
     logits = _switched_conv(h, params["kernel"], phase)
-    return jax.nn.softmax(logits, -1), hidden
+    return jax.nn.softmax(logits, -1, where=valid), hidden
+
+
+def valid_taps(frame: Frame, config: Config):
+    """The taps the softmax runs over, ``[B,H,W,2*K*K]``: every tap for the JAU mix;
+    for the samples mix, the current taps that hold a sample and every history tap."""
+    if config.current == "jau":
+        return None
+    cur = _near(sample_mask(frame, config))[..., 0, :] > 0.5
+    return jnp.concatenate([cur, jnp.ones_like(cur)], -1)
 
 
 def step(params, state: State, frame: Frame, config: Config = Config()):
-    x, jau, rep = prepare(state, frame, config)
-    wts, hidden = kernels(params, x, phase_index(frame.jitter, config))
+    x, cur, rep = prepare(state, frame, config)
+    wts, hidden = kernels(params, x, phase_index(frame.jitter, config),
+                          valid_taps(frame, config))
     n = K * K
-    def near(img):  # zero-padded KxK neighbourhoods, raster order
-        return sampling.neighbourhood(img, K, mode="constant")
-
-    out = (jnp.einsum("bhwcn,bhwn->bhwc", near(jau), wts[..., :n])
-           + jnp.einsum("bhwcn,bhwn->bhwc", near(rep[..., :3]), wts[..., n:]))
+    out = (jnp.einsum("bhwcn,bhwn->bhwc", _near(cur), wts[..., :n])
+           + jnp.einsum("bhwcn,bhwn->bhwc", _near(rep[..., :3]), wts[..., n:]))
     return out, State(jnp.concatenate([out, hidden], -1))
 
 
@@ -186,5 +246,6 @@ SPECS = (Spec("kpn", make, lambda f: Config(factor=f), cost, trainable=True, los
 
 
 
-__all__ = ["Config", "SPECS", "State", "add_sample_mask", "cost", "init", "init_state",
-           "kernels", "make", "phase_index", "prepare", "step"]
+__all__ = ["CURRENT", "Config", "SAMPLES_PRIOR", "SPECS", "State", "add_sample_mask", "cost",
+           "init", "init_state", "kernels", "make", "phase_index", "prepare", "sample_mask",
+           "step", "valid_taps"]

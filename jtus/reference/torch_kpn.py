@@ -23,7 +23,11 @@ up-sampling task; docs/comparison.md), each pinned by the test against jtus:
   outside the image reads zeros; a reset frame's feedback is the current colour and
   zero hidden channels, unwarped;
 - the colour mix pads the neighbourhoods with zeros (the paper's zero padding);
-- the jitter index is the nearest entry of the jitter sequence.
+- the jitter index is the nearest entry of the jitter sequence;
+- with ``samples=True`` (jtus's ``current="samples"``): the current kernel mixes the
+  frame's samples placed at the HR pixel under each (zeros elsewhere), the input gains
+  that pixel mask and the placed samples, and the softmax leaves out the current taps
+  without a sample (their logits set to minus infinity).
 """
 
 import numpy as np
@@ -32,24 +36,29 @@ import torch.nn.functional as F
 from torch import nn
 
 from jtus.reference.inputs import random_frame
+from jtus.reference.torch_nsrr import zero_upsample
 
 HIDDEN = 5
 
 
 class KPN(nn.Module):
-    def __init__(self, phases, width=12):
+    def __init__(self, phases, width=12, samples=False):
         super().__init__()
-        self.conv1 = nn.Conv2d(3 + 1 + 2 + 3 + HIDDEN, width, 3, padding=1)
+        self.conv1 = nn.Conv2d(3 + 1 + 2 + 3 + HIDDEN + 4 * samples, width, 3, padding=1)
         self.conv2 = nn.ModuleList(nn.Conv2d(width, width, 3, padding=1) for _ in range(phases))
         self.conv3 = nn.ModuleList(nn.Conv2d(width, width, 5, padding=2) for _ in range(phases))
         self.hidden = nn.Conv2d(width, HIDDEN, 1)
         self.kernel = nn.ModuleList(nn.Conv2d(width, 50, 5, padding=2) for _ in range(phases))
 
-    def forward(self, x, phase):
+    def forward(self, x, phase, valid=None):
+        """``valid [1,50,H,W]`` (booleans): the taps the softmax runs over."""
         h = F.relu(self.conv1(x))
         h = F.relu(self.conv2[phase](h))
         h = F.relu(self.conv3[phase](h))
-        return torch.softmax(self.kernel[phase](h), 1), self.hidden(h)
+        logits = self.kernel[phase](h)
+        if valid is not None:
+            logits = logits.masked_fill(~valid, float("-inf"))
+        return torch.softmax(logits, 1), self.hidden(h)
 
 
 def to_jtus(net):
@@ -107,7 +116,8 @@ def jau(color, jitter, f):
                          align_corners=False)
 
 
-def step(net, feedback, color, depth, motion, jitter, reset, phases, f, near=0.1, far=100.0):
+def step(net, feedback, color, depth, motion, jitter, reset, phases, f, near=0.1, far=100.0,
+         samples=False):
     """One frame, NCHW: ``feedback [B,8,H,W]`` (None on a sequence's first frame);
     returns ``(rgb [B,3,H,W], feedback)``."""
     b, _, h, w = color.shape
@@ -126,11 +136,18 @@ def step(net, feedback, color, depth, motion, jitter, reset, phases, f, near=0.1
         rep = torch.where(inside, rep, torch.zeros_like(rep))
         rep = torch.where(reset[:, None, None, None], fresh, rep)
     x = torch.cat([cur, up(lin), mv, rep], 1)
+    valid = None
+    if samples:
+        mask = zero_upsample(torch.ones_like(depth), jitter, f)
+        cur = zero_upsample(color, jitter, f)
+        x = torch.cat([x, mask, cur], 1)
+        taps = F.unfold(mask, 5, padding=2).view(b, 25, h * f, w * f) > 0.5
+        valid = torch.cat([taps, torch.ones_like(taps)], 1)
     d = (jitter[:, None, :] - phases[None]).abs().sum(-1)
     index = d.argmin(-1)
     outs, hiddens = [], []
     for i in range(b):
-        wts, hid = net(x[i:i + 1], int(index[i]))
+        wts, hid = net(x[i:i + 1], int(index[i]), None if valid is None else valid[i:i + 1])
         def mix(img, wk):
             patches = F.unfold(img, 5, padding=2).view(1, 3, 25, h * f, w * f)
             return (patches * wk[:, None]).sum(2)
