@@ -10,7 +10,7 @@ import optax
 import pytest
 from PIL import Image
 
-from jtus import evaluate, models, recipe, rollout, train
+from jtus import evaluate, models, recipe, rollout, sampling, train
 from jtus.config import PRESETS
 from jtus.data import dataset
 from jtus.models import kpn, mlp, nsrr
@@ -206,7 +206,7 @@ def test_kpn_samples_mix_weighs_only_the_taps_that_hold_a_sample(factor):
     wts = np.asarray(wts)
     assert np.all(wts[..., :n][~valid[..., :n]] == 0.0)
     np.testing.assert_allclose(wts.sum(-1), 1.0, rtol=0, atol=1e-6)
-    near = lambda img: np.asarray(kpn.sampling.neighbourhood(img, kpn.K, mode="constant"))  # noqa: E731
+    near = lambda img: np.asarray(sampling.neighbourhood(img, kpn.K, mode="constant"))  # noqa: E731
     want = ((near(cur) * wts[:, :, :, None, :n]).sum(-1)
             + (near(rep[..., :3]) * wts[:, :, :, None, n:]).sum(-1))
     out, _ = kpn.step(params, state, fr, config)
