@@ -226,8 +226,8 @@ def second_stage(model, factor, root=ROOT):
 # weights' base name under experiments/weights/, the table's description of them)
 REDESIGNED = {"mlp": ("mlp-jau", "JAU base, contrast-normalized patches; both families' "
                                  "holds"),
-              "kpn": ("kpn-samples", "the current kernel mixes the samples themselves; "
-                                     "diverse")}
+              "kpn": ("kpn-clamp", "the current kernel mixes the samples themselves, the "
+                                   "history clamped to their box; diverse, then a fine-tune")}
 
 
 def redesigned(model, factor, root=ROOT):

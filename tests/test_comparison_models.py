@@ -243,6 +243,30 @@ def test_kpn_config_names_a_bad_current_colour():
     with pytest.raises(ValueError, match=r"^current: expected one of \('jau', 'samples'\), "
                                          r"got 'sparse'$"):
         kpn.Config(current="sparse")
+    with pytest.raises(ValueError, match=r"^history: expected one of \('raw', 'clamped'\), "
+                                         r"got 'clipped'$"):
+        kpn.Config(history="clipped")
+
+
+def test_kpn_clamped_history_keeps_what_lies_in_the_samples_box():
+    """``history="clamped"``: the reprojected RGB is clamped to the 3x3 box of the
+    frame's samples (``sampling.neighbourhood_box``); colour already inside it and the
+    hidden channels pass unchanged. Catches: the hidden channels clamped, the box
+    taken around another position than the jitter-aligned one."""
+    frames, _ = _frames(T=1, B=2)
+    frame = seqdata.first(frames)
+    config = kpn.Config(current="samples", history="clamped")
+    b, h, w, _ = frame.color.shape
+    xy = sampling.jitter_aligned_coords(frame.jitter, b, h, w, 4)
+    lo, hi = (np.asarray(v) for v in sampling.neighbourhood_box(frame.color, xy))
+    rep = np.random.default_rng(3).uniform(-0.5, 1.5, size=(b, 4 * h, 4 * w, 8))
+    rep[0, :, :, :3] = (lo[0] + hi[0]) / 2  # element 0 inside the box everywhere
+    out = np.asarray(kpn.clamp_history(jnp.asarray(rep, jnp.float32), frame, config))
+    np.testing.assert_array_equal(out[..., 3:], rep[..., 3:].astype(np.float32))
+    np.testing.assert_allclose(out[0, ..., :3], rep[0, ..., :3], rtol=0, atol=1e-7)
+    np.testing.assert_allclose(out[1, ..., :3], np.clip(rep[1, ..., :3], lo[1], hi[1]),
+                               rtol=0, atol=1e-7)
+    assert (np.abs(out[1, ..., :3] - rep[1, ..., :3]) > 1e-3).mean() > 0.5
 
 
 def test_kpn_uses_the_weight_set_of_the_jitter_phase():
@@ -331,14 +355,16 @@ def test_every_registered_model_has_a_cost_and_its_hooks():
     assert models.spec("kpn").loss == "kpn"
 
 
-@pytest.mark.parametrize("current", ["jau", "samples"])
+@pytest.mark.parametrize("current,history", [("jau", "raw"), ("samples", "raw"),
+                                             ("samples", "clamped")])
 @pytest.mark.parametrize("factor", [4, 2])
-def test_kpn_matches_an_independent_torch_kpn(factor, current):
+def test_kpn_matches_an_independent_torch_kpn(factor, current, history):
     """jtus's KPN against jtus/reference/torch_kpn.py (its own parameter layout, Catmull-Rom,
     input preparation and colour mix, from Herveau et al. and docs/comparison.md) over
     6 frames with motion, a camera cut in one element and the weight set of each
     frame's jitter phase; with either colour for the current kernel (``samples``: the
-    placed samples, the softmax over the taps that hold one)."""
+    placed samples, the softmax over the taps that hold one) and the history raw or
+    clamped to the samples' neighbourhood box (its own gathers of the 9 samples)."""
     import torch
 
     from jtus import models, rollout
@@ -347,7 +373,7 @@ def test_kpn_matches_an_independent_torch_kpn(factor, current):
     frames, _ = seqdata.sequence(T=6, B=2, h=24 // factor, w=32 // factor, factor=factor,
                                  seed=11, max_motion=1.5, reset_at=(3, 1))
     frames.reset[0] = True
-    model = models.build("kpn", factor, current=current)
+    model = models.build("kpn", factor, current=current, history=history)
     phases = np.asarray(model.config.phases(), np.float32)
     torch.manual_seed(0)
     net = torch_kpn.KPN(len(phases), samples=current == "samples")
@@ -362,13 +388,18 @@ def test_kpn_matches_an_independent_torch_kpn(factor, current):
             out, fb = torch_kpn.step(net, fb, nchw(frames.color[t]), nchw(frames.depth[t]),
                                      nchw(frames.motion[t]), torch.from_numpy(frames.jitter[t]),
                                      torch.from_numpy(frames.reset[t]), torch.from_numpy(phases),
-                                     factor, samples=current == "samples")
+                                     factor, samples=current == "samples",
+                                     clamp=history == "clamped")
             ref.append(out.numpy().transpose(0, 2, 3, 1))
-    # float32; measured max 3.0e-7 (both factors, both current colours)
+    # float32; measured max 3.0e-7 (both factors, every variant)
     np.testing.assert_allclose(np.asarray(outs), np.stack(ref), rtol=0, atol=1e-6)
     np.testing.assert_allclose(np.asarray(final.history), fb.numpy().transpose(0, 2, 3, 1),
                                rtol=0, atol=1e-6)
     assert np.abs(np.asarray(outs)).max() > 0.1  # not a comparison of zeros
+    if history == "clamped":  # the clamp bites: the raw history gives other outputs
+        raw = models.build("kpn", factor, current=current)
+        outs_raw, _ = rollout.outputs(raw.step, params, rollout.first_state(raw, jf), jf)
+        assert np.abs(np.asarray(outs_raw) - np.asarray(outs)).max() > 1e-3
 
 
 @pytest.mark.parametrize("factor", [4, 2])

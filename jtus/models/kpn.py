@@ -30,6 +30,13 @@ accumulates each pixel's samples with weight about 0.1 and keeps its history
 elsewhere. At 2x and 4x every 5x5 window off the border holds at least one sample;
 the 25 history taps keep the softmax defined where a border window holds none.
 
+``history="clamped"`` clamps the reprojected history's RGB, per channel, to the min
+and max of the 3x3 LR samples around each HR pixel's nearest sample
+(``sampling.neighbourhood_box``, TUS's ``clamp``) before it enters the network and the
+history kernel. A softmax mix of the history cannot leave the range of its taps, so a
+history the scene has left behind (a light that dims while the camera holds still)
+would otherwise stay in the output for as long as the network keeps weighting it.
+
 The state is ``[B,H,W,8]``: the output RGB and the hidden channels.
 """
 
@@ -53,6 +60,7 @@ K = 5  # kernel size
 IN_CHANNELS = 3 + 1 + 2 + 3 + HIDDEN
 SWITCHED = ("conv2", "conv3", "kernel")
 CURRENT = ("jau", "samples")
+HISTORY = ("raw", "clamped")
 # current="samples": the kernel layer's starting bias (logits) for the history's centre
 # tap, a sample on the pixel itself, and every other tap (module docstring)
 SAMPLES_PRIOR = {"history_centre": math.log(9.0), "sample_centre": 0.0, "other": -5.0}
@@ -66,12 +74,15 @@ class Config:
     jitter: str = "thesis"   # the sequence whose index selects the weight set
     sample_mask: bool = False  # one more input: 1 where this frame's sample lands
     current: str = "jau"     # what the current kernel mixes: "jau" or "samples"
+    history: str = "raw"     # "clamped": the history RGB clamped to the samples' 3x3 box
     near: float = NEAR
     far: float = FAR
 
     def __post_init__(self):
         if self.current not in CURRENT:
             raise ValueError(f"current: expected one of {CURRENT}, got {self.current!r}")
+        if self.history not in HISTORY:
+            raise ValueError(f"history: expected one of {HISTORY}, got {self.history!r}")
 
     def marks_samples(self):
         """Whether the input holds the sample mask (``sample_mask`` or the samples mix)."""
@@ -159,6 +170,8 @@ def prepare(state: State, frame: Frame, config: Config):
     # a reset frame's history is the fresh input, unwarped (base.reset_select)
     fresh = jnp.concatenate([jau, jnp.zeros(jau.shape[:-1] + (HIDDEN,), jnp.float32)], -1)
     rep = reset_select(frame.reset, fresh, rep)
+    if config.history == "clamped":
+        rep = clamp_history(rep, frame, config)
     parts = [jau, depth, mv, rep]
     if config.marks_samples():
         parts.append(sample_mask(frame, config))
@@ -167,6 +180,17 @@ def prepare(state: State, frame: Frame, config: Config):
         cur = sampling.zero_upsample(frame.color.astype(jnp.float32), jit, f)
         parts.append(cur)
     return jnp.concatenate(parts, -1), cur, rep
+
+
+def clamp_history(rep, frame: Frame, config: Config):
+    """The reprojected state ``rep [B,H,W,8]`` with its RGB clamped, per channel, to
+    the min and max of the 3x3 LR samples around each HR pixel's nearest sample
+    (``sampling.neighbourhood_box``, TUS's ``clamp`` rectification); the hidden channels
+    pass unchanged."""
+    b, h, w, _ = frame.color.shape
+    xy = sampling.jitter_aligned_coords(frame.jitter, b, h, w, config.factor)
+    lo, hi = sampling.neighbourhood_box(frame.color.astype(jnp.float32), xy)
+    return jnp.concatenate([jnp.clip(rep[..., :3], lo, hi), rep[..., 3:]], -1)
 
 
 def sample_mask(frame: Frame, config: Config):
@@ -246,6 +270,6 @@ SPECS = (Spec("kpn", make, lambda f: Config(factor=f), cost, trainable=True, los
 
 
 
-__all__ = ["CURRENT", "Config", "SAMPLES_PRIOR", "SPECS", "State", "add_sample_mask", "cost",
-           "init", "init_state", "kernels", "make", "phase_index", "prepare", "sample_mask",
-           "step", "valid_taps"]
+__all__ = ["CURRENT", "Config", "HISTORY", "SAMPLES_PRIOR", "SPECS", "State", "add_sample_mask",
+           "clamp_history", "cost", "init", "init_state", "kernels", "make", "phase_index",
+           "prepare", "sample_mask", "step", "valid_taps"]

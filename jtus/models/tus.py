@@ -96,8 +96,7 @@ _OFFSETS = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
 
 def _jau_coords(frame, f):
     b, h, w, _ = frame.color.shape
-    xy = sampling.pixel_grid(b, h * f, w * f) / f
-    return xy - frame.jitter.astype(jnp.float32)[:, None, None, :] + 0.5
+    return sampling.jitter_aligned_coords(frame.jitter, b, h, w, f)
 
 
 def _scaled_input(config, color, xy):
@@ -132,22 +131,6 @@ def _beta(config, frame, beta_max):
     return sampling.zero_upsample(ones, frame.jitter.astype(jnp.float32), config.factor)
 
 
-def _box(color, xy, with_mean):
-    """Per HR pixel, the min and max (and mean) of the 3x3 LR samples around its
-    nearest sample, each tap clamped to the image: ``[B,H,W,C]`` each.
-
-    Taken once at LR and gathered once: the image is edge-padded by one pixel first,
-    so that a nearest sample just outside the image (a jitter can put it there) keeps
-    the statistics of its own clamped taps, which makes this equal, value for value,
-    to gathering the 9 clamped nearest samples at HR (the test's reference)."""
-    p = sampling.pad_edge(color, 1)
-    n = sampling.neighbourhood(p, 3)  # [B,h+2,w+2,C,9]
-    stats = [n.min(-1), n.max(-1)] + ([n.mean(-1)] if with_mean else [])
-    c = color.shape[-1]
-    got = sampling.sample(jnp.concatenate(stats, -1), xy + 1.0, "nearest")
-    return [got[..., i * c:(i + 1) * c] for i in range(len(stats))]
-
-
 def _rectify(config, hist, color, xy):
     if config.rectify == "none":
         return hist
@@ -155,9 +138,10 @@ def _rectify(config, hist, color, xy):
     back = sampling.ycocg_to_rgb if config.color_space == "ycocg" else (lambda x: x)
     h = to(hist)
     if config.rectify == "clamp":
-        lo, hi = _box(to(color), xy, False)
+        lo, hi = sampling.neighbourhood_box(to(color), xy)
         return back(jnp.clip(h, lo, hi))
-    lo, hi, mean = _box(to(color), xy, True)  # clip the segment mean -> h onto the box
+    # clip the segment mean -> h onto the box
+    lo, hi, mean = sampling.neighbourhood_box(to(color), xy, True)
     v = h - mean
     # per channel, how far along v the box's face is (>= 0: lo <= mean <= hi); a channel
     # with v = 0 sets no bound (its unselected quotient may be inf or nan: never read)

@@ -27,7 +27,11 @@ up-sampling task; docs/comparison.md), each pinned by the test against jtus:
 - with ``samples=True`` (jtus's ``current="samples"``): the current kernel mixes the
   frame's samples placed at the HR pixel under each (zeros elsewhere), the input gains
   that pixel mask and the placed samples, and the softmax leaves out the current taps
-  without a sample (their logits set to minus infinity).
+  without a sample (their logits set to minus infinity);
+- with ``clamp=True`` (jtus's ``history="clamped"``): the reprojected RGB is clamped,
+  per channel, to the min and max of the 3x3 LR samples around the sample nearest
+  each HR pixel's jitter-aligned position, every tap clamped to the image (TUS's
+  neighbourhood clamp), before it enters the network and the history kernel.
 """
 
 import numpy as np
@@ -116,8 +120,28 @@ def jau(color, jitter, f):
                          align_corners=False)
 
 
+def box(color, jitter, f):
+    """Per HR pixel, the min and max ``[B,C,H,W]`` of the 9 LR samples at the offsets
+    -1, 0, 1 from the sample nearest its jitter-aligned position ``P / f - jitter +
+    0.5``, read one by one with their indices clamped to the image."""
+    b, c, h, w = color.shape
+    xs = (torch.arange(w * f, dtype=color.dtype) + 0.5) / f
+    ys = (torch.arange(h * f, dtype=color.dtype) + 0.5) / f
+    nx = torch.floor(xs[None, None, :] - jitter[:, 0, None, None] + 0.5).clamp(-1, w)
+    ny = torch.floor(ys[None, :, None] - jitter[:, 1, None, None] + 0.5).clamp(-1, h)
+    nx, ny = nx.expand(b, h * f, w * f), ny.expand(b, h * f, w * f)
+    flat = color.reshape(b, c, h * w)
+    taps = []
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            idx = ((ny + dy).clamp(0, h - 1) * w + (nx + dx).clamp(0, w - 1)).long()
+            taps.append(torch.gather(flat, 2, idx.reshape(b, 1, -1).expand(b, c, -1)))
+    taps = torch.stack(taps).reshape(9, b, c, h * f, w * f)
+    return taps.min(0).values, taps.max(0).values
+
+
 def step(net, feedback, color, depth, motion, jitter, reset, phases, f, near=0.1, far=100.0,
-         samples=False):
+         samples=False, clamp=False):
     """One frame, NCHW: ``feedback [B,8,H,W]`` (None on a sequence's first frame);
     returns ``(rgb [B,3,H,W], feedback)``."""
     b, _, h, w = color.shape
@@ -135,6 +159,9 @@ def step(net, feedback, color, depth, motion, jitter, reset, phases, f, near=0.1
         inside = ((px >= 0) & (px <= w * f) & (py >= 0) & (py <= h * f))[:, None]
         rep = torch.where(inside, rep, torch.zeros_like(rep))
         rep = torch.where(reset[:, None, None, None], fresh, rep)
+    if clamp:
+        lo, hi = box(color, jitter, f)
+        rep = torch.cat([torch.minimum(torch.maximum(rep[:, :3], lo), hi), rep[:, 3:]], 1)
     x = torch.cat([cur, up(lin), mv, rep], 1)
     valid = None
     if samples:

@@ -156,6 +156,32 @@ def jitter_aligned_upsample(x, jitter, factor, method="bilinear", a=-0.75):
     return sample(x, xy, method=method, a=a)
 
 
+def jitter_aligned_coords(jitter, batch, height, width, factor, dtype=jnp.float32):
+    """Where each HR pixel of a ``height x width`` LR frame reads it, ``[B,f*H,f*W,2]``
+    in LR pixels: the HR centre minus the frame's ``jitter [B,2]``, plus 0.5 (the
+    position ``jitter_aligned_upsample`` samples, which puts each sample under its true
+    position)."""
+    xy = hr_to_lr_coords(batch, height, width, factor, dtype)
+    return xy - jitter.astype(dtype)[:, None, None, :] + 0.5
+
+
+def neighbourhood_box(color, xy, with_mean=False):
+    """Per HR pixel, the min and max (and, with ``with_mean``, the mean) of the 3x3 LR
+    samples of ``color [B,h,w,C]`` around the sample nearest ``xy`` (LR pixels, as
+    ``jitter_aligned_coords``), each tap clamped to the image: ``[B,H,W,C]`` each. The
+    box that temporal anti-aliasing clamps a history to.
+
+    Taken once at LR and gathered once: the image is edge-padded by one pixel first,
+    so that a nearest sample just outside the image (a jitter can put it there) keeps
+    the statistics of its own clamped taps, which makes this equal, value for value,
+    to gathering the 9 clamped nearest samples at HR (the test's reference)."""
+    n = neighbourhood(pad_edge(color, 1), 3)  # [B,h+2,w+2,C,9]
+    stats = [n.min(-1), n.max(-1)] + ([n.mean(-1)] if with_mean else [])
+    c = color.shape[-1]
+    got = sample(jnp.concatenate(stats, -1), xy + 1.0, "nearest")
+    return [got[..., i * c:(i + 1) * c] for i in range(len(stats))]
+
+
 def pad_edge(x, p):
     """Replicate the border of ``x [B,H,W,C]`` by ``p`` pixels on H and W.
 
