@@ -267,6 +267,9 @@ def test_kpn_clamped_history_keeps_what_lies_in_the_samples_box():
     np.testing.assert_allclose(out[1, ..., :3], np.clip(rep[1, ..., :3], lo[1], hi[1]),
                                rtol=0, atol=1e-7)
     assert (np.abs(out[1, ..., :3] - rep[1, ..., :3]) > 1e-3).mean() > 0.5
+    # the cost model counts the clamp: 48 operations per LR pixel and 6 per HR pixel
+    raw = kpn.cost(dataclasses.replace(config, history="raw"), 64, 64)
+    assert kpn.cost(config, 64, 64).flops - raw.flops == 16 * 16 * 48 + 64 * 64 * 6
 
 
 def test_kpn_uses_the_weight_set_of_the_jitter_phase():

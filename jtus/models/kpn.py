@@ -258,6 +258,8 @@ def cost(config: Config, H, W) -> Cost:
     n = 2 * K * K
     apply = px * (n * 3 * 2 + n * 4)  # the two kernels on 3 channels, softmax
     warp = px * (16 * 8 * 2 + 20) + px * 4 * 3 * 2
+    if config.history == "clamped":  # min and max of 9 samples at LR, then a clip at HR
+        warp += lr * 2 * 8 * 3 + px * 2 * 3
     compulsory = 4 * (lr * 6 + 2 * px * 8 + px * 3)
     act = 4 * 2 * px * (config.in_channels() + 3 * config.width + n + HIDDEN)
     return Cost(net + apply + warp, net, compulsory, compulsory + act)
