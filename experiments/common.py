@@ -227,7 +227,7 @@ def second_stage(model, factor, root=ROOT):
 REDESIGNED = {"mlp": ("mlp-jau", "JAU base, contrast-normalized patches; both families' "
                                  "holds"),
               "kpn": ("kpn-clamp", "the current kernel mixes the samples themselves, the "
-                                   "history clamped to their box; diverse, then a fine-tune")}
+                                   "history clamped to their box; diverse, then fine-tunes")}
 
 
 def redesigned(model, factor, root=ROOT):

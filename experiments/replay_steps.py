@@ -21,7 +21,6 @@ import contextlib
 import os
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from common import write
 
@@ -47,12 +46,9 @@ def replay(workdir, steps=None, frozen=False):
     with Dataset(cfg.dataset) as ds, contextlib.ExitStack() as stack:
         mix = stack.enter_context(Dataset(cfg.mix_dataset)) if cfg.mix_dataset else None
         for _ in range(steps or cfg.steps_per_epoch):
-            frames, targets, _ = recipe.train_crops(cfg, ds, mix, cfg.batch, rng,
-                                                    recipe.accept_for(cfg))
-            frames, targets = jax.tree_util.tree_map(jnp.asarray, (frames, targets))
-            carry = recipe.start_carry(model, frames, targets)
-            for w in plan.windows:
-                sl = jax.tree_util.tree_map(lambda x: x[w.start:w.stop], (frames, targets))
+            frames, targets, carry = recipe.training_sequence(cfg, model, ds, mix, cfg.batch,
+                                                              rng, recipe.accept_for(cfg))
+            for sl in recipe.window_slices(plan, frames, targets):
                 after, carry, st = step_fn(ts, carry, *sl)
                 ts = ts if frozen else after
                 rows.append((len(rows) + 1, float(st["loss"]), float(st["grad_norm"])))

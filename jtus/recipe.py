@@ -11,6 +11,7 @@ import os
 from typing import NamedTuple, Optional
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import optax
 
@@ -77,6 +78,20 @@ def optimizer_for(config: Config):
 def start_carry(model, frames, targets) -> rollout.Carry:
     """The carry at the start of time-major training sequences."""
     return rollout.start(rollout.first_state(model, frames), targets[0])
+
+
+def training_sequence(config: Config, model, ds, mix, batch, rng, accept=None):
+    """``(frames, targets, carry)`` on the device: one draw of ``train_crops`` and the
+    carry at its start."""
+    frames, targets, _ = train_crops(config, ds, mix, batch, rng, accept)
+    frames, targets = jax.tree_util.tree_map(jnp.asarray, (frames, targets))
+    return frames, targets, start_carry(model, frames, targets)
+
+
+def window_slices(plan: Plan, frames, targets):
+    """``(frames, targets)`` of each of ``plan``'s windows in turn (time-major slices)."""
+    for w in plan.windows:
+        yield jax.tree_util.tree_map(lambda x: x[w.start:w.stop], (frames, targets))
 
 
 def mix_count(config: Config, batch):

@@ -287,15 +287,12 @@ def _train_epoch(run, ts, ds, epoch, progress, mix=None):
     bar = tqdm(range(config.steps_per_epoch), desc=f"epoch {epoch}/{config.epochs}",
                disable=not progress, leave=False)
     for i in bar:
-        frames, targets, _ = recipe.train_crops(config, ds, mix, config.batch // procs, rng,
-                                                run.accept)
-        frames, targets = jax.tree_util.tree_map(jnp.asarray, (frames, targets))
-        carry = recipe.start_carry(run.model, frames, targets)
+        frames, targets, carry = recipe.training_sequence(
+            config, run.model, ds, mix, config.batch // procs, rng, run.accept)
         if run.mesh is not None:
             frames, targets = sharding.shard((frames, targets), run.mesh, axis=1)
             carry = sharding.shard(carry, run.mesh, axis=0)
-        for w in run.plan.windows:
-            sl = jax.tree_util.tree_map(lambda x: x[w.start:w.stop], (frames, targets))
+        for sl in recipe.window_slices(run.plan, frames, targets):
             ts, carry, st = run.step_fn(ts, carry, *sl)
             stats.append(st)
         if progress and i % 10 == 9:  # one device sync per 10 sequences

@@ -197,7 +197,7 @@ def test_kpn_samples_mix_weighs_only_the_taps_that_hold_a_sample(factor):
     state = kpn.init_state(fr, config)
     x, cur, rep = kpn.prepare(state, fr, config)
     assert x.shape[-1] == config.in_channels() == kpn.IN_CHANNELS + 4
-    valid = np.asarray(kpn.valid_taps(fr, config))
+    valid = np.asarray(kpn.valid_taps(x, config))
     n = kpn.K * kpn.K
     assert valid[:, 2:-2, 2:-2, :n].sum(-1).min() >= 1 and valid[..., n:].all()
     # at 4x a border window may hold none (the jitter cell past its three columns)
@@ -226,7 +226,7 @@ def test_kpn_samples_mix_starts_as_jitter_aware_accumulation():
     params["kernel"]["kernel"] = jnp.zeros_like(params["kernel"]["kernel"])
     fr = seqdata.first(frames)
     x, _, _ = kpn.prepare(kpn.init_state(fr, config), fr, config)
-    valid = kpn.valid_taps(fr, config)
+    valid = kpn.valid_taps(x, config)
     wts, _ = kpn.kernels(params, x, kpn.phase_index(fr.jitter, config), valid)
     wts, valid = np.asarray(wts), np.asarray(valid)
     n, c = kpn.K * kpn.K, kpn.K * kpn.K // 2
@@ -246,6 +246,44 @@ def test_kpn_config_names_a_bad_current_colour():
     with pytest.raises(ValueError, match=r"^history: expected one of \('raw', 'clamped'\), "
                                          r"got 'clipped'$"):
         kpn.Config(history="clipped")
+    with pytest.raises(ValueError, match=r"^exposure: expected one of \('absolute', "
+                                         r"'normalized'\), got 'auto'$"):
+        kpn.Config(exposure="auto")
+
+
+@pytest.mark.parametrize("factor", [4, 2])
+def test_kpn_normalized_exposure_scales_outputs_with_the_colour(factor):
+    """``exposure="normalized"``: over 5 frames with motion and a camera cut, the
+    video's colour times 8 or times 1/4 gives the outputs times 8 or 1/4 (powers of
+    two, so the network reads the same numbers; measured exact), and the hidden
+    channels do not change. The KPN fed absolute colour does not have this property,
+    which is what the test would catch if the normalization were dropped."""
+    frames, _ = seqdata.sequence(T=5, B=2, h=24 // factor, w=32 // factor, factor=factor,
+                                 seed=5, max_motion=1.5, reset_at=(3, 1))
+    jf = seqdata.to_jax(frames)
+
+    def run(scale, exposure):
+        m = models.build("kpn", factor, current="samples", history="clamped",
+                         exposure=exposure)
+        fr = jf._replace(color=jf.color * scale)
+        return rollout.outputs(m.step, m.init(jax.random.PRNGKey(1)),
+                               rollout.first_state(m, fr), fr)
+
+    outs, final = run(1.0, "normalized")
+    for scale in (8.0, 0.25):
+        o, f = run(scale, "normalized")
+        np.testing.assert_allclose(np.asarray(o), scale * np.asarray(outs), rtol=1e-6,
+                                   atol=1e-7)
+        np.testing.assert_allclose(np.asarray(f.history[..., 3:]),
+                                   np.asarray(final.history[..., 3:]), rtol=1e-6, atol=1e-7)
+    absolute, _ = run(1.0, "absolute")
+    brighter, _ = run(8.0, "absolute")
+    assert np.abs(np.asarray(brighter) - 8.0 * np.asarray(absolute)).max() > 1e-3
+    # the cost model counts the frame's mean and the scaled colour inputs
+    config = kpn.Config(factor=factor, current="samples", exposure="normalized")
+    absolute_cost = kpn.cost(dataclasses.replace(config, exposure="absolute"), 64, 64)
+    assert (kpn.cost(config, 64, 64).flops - absolute_cost.flops
+            == (64 // factor) ** 2 * 3 + 64 * 64 * 9)
 
 
 def test_kpn_clamped_history_keeps_what_lies_in_the_samples_box():
@@ -358,16 +396,18 @@ def test_every_registered_model_has_a_cost_and_its_hooks():
     assert models.spec("kpn").loss == "kpn"
 
 
-@pytest.mark.parametrize("current,history", [("jau", "raw"), ("samples", "raw"),
-                                             ("samples", "clamped")])
+@pytest.mark.parametrize("current,history,exposure", [
+    ("jau", "raw", "absolute"), ("samples", "raw", "absolute"),
+    ("samples", "clamped", "absolute"), ("samples", "clamped", "normalized")])
 @pytest.mark.parametrize("factor", [4, 2])
-def test_kpn_matches_an_independent_torch_kpn(factor, current, history):
+def test_kpn_matches_an_independent_torch_kpn(factor, current, history, exposure):
     """jtus's KPN against jtus/reference/torch_kpn.py (its own parameter layout, Catmull-Rom,
     input preparation and colour mix, from Herveau et al. and docs/comparison.md) over
     6 frames with motion, a camera cut in one element and the weight set of each
     frame's jitter phase; with either colour for the current kernel (``samples``: the
     placed samples, the softmax over the taps that hold one) and the history raw or
-    clamped to the samples' neighbourhood box (its own gathers of the 9 samples)."""
+    clamped to the samples' neighbourhood box (its own gathers of the 9 samples), and
+    the network's colour absolute or over the frame's mean."""
     import torch
 
     from jtus import models, rollout
@@ -376,7 +416,7 @@ def test_kpn_matches_an_independent_torch_kpn(factor, current, history):
     frames, _ = seqdata.sequence(T=6, B=2, h=24 // factor, w=32 // factor, factor=factor,
                                  seed=11, max_motion=1.5, reset_at=(3, 1))
     frames.reset[0] = True
-    model = models.build("kpn", factor, current=current, history=history)
+    model = models.build("kpn", factor, current=current, history=history, exposure=exposure)
     phases = np.asarray(model.config.phases(), np.float32)
     torch.manual_seed(0)
     net = torch_kpn.KPN(len(phases), samples=current == "samples")
@@ -392,7 +432,8 @@ def test_kpn_matches_an_independent_torch_kpn(factor, current, history):
                                      nchw(frames.motion[t]), torch.from_numpy(frames.jitter[t]),
                                      torch.from_numpy(frames.reset[t]), torch.from_numpy(phases),
                                      factor, samples=current == "samples",
-                                     clamp=history == "clamped")
+                                     clamp=history == "clamped",
+                                     normalize=exposure == "normalized")
             ref.append(out.numpy().transpose(0, 2, 3, 1))
     # float32; measured max 3.0e-7 (both factors, every variant)
     np.testing.assert_allclose(np.asarray(outs), np.stack(ref), rtol=0, atol=1e-6)

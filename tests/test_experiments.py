@@ -512,6 +512,44 @@ def test_kpn_checkpoint_gains_the_sample_mask_as_a_no_op(tmp_path):
     assert not (tmp_path / "again.msgpack").exists() and not (tmp_path / "no.json").exists()
 
 
+def test_kpn_checkpoint_switched_to_normalized_exposure_keeps_its_outputs(tmp_path):
+    """experiments/kpn_exposure.py writes a samples KPN checkpoint fed exposure-normalized
+    colour, with ``exposure`` in its config, that computes on a frame whose mean colour
+    is ``--mean`` what the original computes (the first convolution's colour weights
+    times the mean); a normalized checkpoint, another model's, or a mean that is not
+    positive is refused by name, and nothing is written."""
+    from jtus.config import Config
+    from jtus.models import kpn
+
+    ks = seqdata.load_script("kpn_exposure")
+    overrides = (("current", "samples"), ("history", "clamped"))
+    cfg = Config(model="kpn", factor=2, model_overrides=overrides)
+    config = kpn.Config(factor=2, current="samples", history="clamped")
+    params = kpn.init(jax.random.PRNGKey(0), config)
+    src = checkpoint.write_params(str(tmp_path / "kpn"), params, config_mod.to_json(cfg))
+    frames, _ = seqdata.to_jax(seqdata.sequence(T=1, B=1, h=6, w=6, factor=2))
+    fr = seqdata.at(frames, 0)
+    mean = float(np.asarray(fr.color, np.float32).mean())
+    ks.main([src, "--mean", repr(mean), "--out", str(tmp_path / "norm")])
+    norm, ncfg = loading.load_params(str(tmp_path / "norm.msgpack"))
+    assert dict(ncfg.model_overrides) == {**dict(overrides), "exposure": "normalized"}
+    model = recipe.model_for(ncfg)
+    want = kpn.step(params, kpn.init_state(fr, config), fr, config)[0]
+    got = model.step(norm, model.init_state(fr), fr)[0]
+    np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=0, atol=1e-6)
+    with pytest.raises(SystemExit, match="exposure is already normalized"):
+        ks.main([str(tmp_path / "norm.msgpack"), "--out", str(tmp_path / "again")])
+    with pytest.raises(SystemExit, match="mean: expected a positive mean colour, got 0.0"):
+        ks.main([src, "--mean", "0", "--out", str(tmp_path / "zero")])
+    from jtus.models import mlp
+    other = checkpoint.write_params(str(tmp_path / "mlp"), mlp.init(
+        jax.random.PRNGKey(0), mlp.Config(factor=2)), config_mod.to_json(
+        Config(model="mlp", factor=2)))
+    with pytest.raises(SystemExit, match="expected a kpn checkpoint"):
+        ks.main([other, "--out", str(tmp_path / "no")])
+    assert not any((tmp_path / f"{n}.msgpack").exists() for n in ("again", "zero", "no"))
+
+
 def test_replayed_first_epoch_takes_the_logged_steps(tiny_data, tmp_path):
     """experiments/replay_steps.py redraws a run's first-epoch crops from its starting
     weights: the replayed gradient norms' mean and maximum equal the epoch log's, and

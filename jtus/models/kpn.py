@@ -37,6 +37,13 @@ history kernel. A softmax mix of the history cannot leave the range of its taps,
 history the scene has left behind (a light that dims while the camera holds still)
 would otherwise stay in the output for as long as the network keeps weighting it.
 
+``exposure="normalized"`` divides the colour the network sees (the JAU colour, the
+history's RGB and the placed samples) by the frame's mean LR colour (per video, over
+pixels and channels, floored at ``EXPOSURE_FLOOR``); the kernels still mix the colours
+as they are. The network's weights then do not depend on the scene's exposure: scaling
+a video's colour by ``s`` scales every output by ``s``, as it does TUS's, where a network
+fed absolute colour learns one blend for dark levels and another for bright ones.
+
 The state is ``[B,H,W,8]``: the output RGB and the hidden channels.
 """
 
@@ -61,6 +68,8 @@ IN_CHANNELS = 3 + 1 + 2 + 3 + HIDDEN
 SWITCHED = ("conv2", "conv3", "kernel")
 CURRENT = ("jau", "samples")
 HISTORY = ("raw", "clamped")
+EXPOSURE = ("absolute", "normalized")
+EXPOSURE_FLOOR = 1e-4  # the least frame mean ``exposure="normalized"`` divides by
 # current="samples": the kernel layer's starting bias (logits) for the history's centre
 # tap, a sample on the pixel itself, and every other tap (module docstring)
 SAMPLES_PRIOR = {"history_centre": math.log(9.0), "sample_centre": 0.0, "other": -5.0}
@@ -75,6 +84,7 @@ class Config:
     sample_mask: bool = False  # one more input: 1 where this frame's sample lands
     current: str = "jau"     # what the current kernel mixes: "jau" or "samples"
     history: str = "raw"     # "clamped": the history RGB clamped to the samples' 3x3 box
+    exposure: str = "absolute"  # "normalized": network colour over the frame's mean colour
     near: float = NEAR
     far: float = FAR
 
@@ -83,6 +93,8 @@ class Config:
             raise ValueError(f"current: expected one of {CURRENT}, got {self.current!r}")
         if self.history not in HISTORY:
             raise ValueError(f"history: expected one of {HISTORY}, got {self.history!r}")
+        if self.exposure not in EXPOSURE:
+            raise ValueError(f"exposure: expected one of {EXPOSURE}, got {self.exposure!r}")
 
     def marks_samples(self):
         """Whether the input holds the sample mask (``sample_mask`` or the samples mix)."""
@@ -140,6 +152,26 @@ def add_sample_mask(params):
     return {**params, "conv1": {**conv1, "kernel": jnp.concatenate([kernel, zero], 2)}}
 
 
+def normalize_exposure(params, config: Config, mean: float):
+    """Parameters for ``exposure="normalized"`` that compute, on a frame whose mean LR
+    colour is ``mean``, what ``params`` (a KPN fed absolute colour, ``config``) computes:
+    the first convolution's weights for the colour inputs (the JAU colour, the history
+    RGB and, for the samples mix, the placed samples) are multiplied by ``mean``, so
+    that training starts from what the network already does at that exposure."""
+    if config.exposure != "absolute":
+        raise ValueError("config: exposure is already normalized")
+    if not mean > 0:
+        raise ValueError(f"mean: expected a positive mean colour, got {mean}")
+    conv1 = params["conv1"]
+    n = conv1["kernel"].shape[2]
+    if n != config.in_channels():
+        raise ValueError(f"params: conv1 takes {n} input channels, expected "
+                         f"{config.in_channels()} for {config}")
+    colour = [0, 1, 2, 6, 7, 8] + ([n - 3, n - 2, n - 1] if config.current == "samples" else [])
+    scale = jnp.ones((n,), jnp.float32).at[jnp.asarray(colour)].set(mean)
+    return {**params, "conv1": {**conv1, "kernel": conv1["kernel"] * scale[:, None]}}
+
+
 def phase_index(jitter, config: Config):
     """The index of each frame's jitter in the sequence ``[B]`` (nearest entry)."""
     seq = jnp.asarray(config.phases(), jnp.float32)
@@ -172,14 +204,26 @@ def prepare(state: State, frame: Frame, config: Config):
     rep = reset_select(frame.reset, fresh, rep)
     if config.history == "clamped":
         rep = clamp_history(rep, frame, config)
-    parts = [jau, depth, mv, rep]
+    scale = exposure_scale(frame, config)
+    parts = [jau * scale, depth, mv, rep[..., :3] * scale, rep[..., 3:]]
     if config.marks_samples():
         parts.append(sample_mask(frame, config))
     cur = jau
     if config.current == "samples":
         cur = sampling.zero_upsample(frame.color.astype(jnp.float32), jit, f)
-        parts.append(cur)
+        parts.append(cur * scale)
     return jnp.concatenate(parts, -1), cur, rep
+
+
+def exposure_scale(frame: Frame, config: Config):
+    """``[B,1,1,1]``: what the network's colour inputs are multiplied by: 1 for
+    ``exposure="absolute"``, else one over the frame's mean LR colour (at least
+    ``EXPOSURE_FLOOR``)."""
+    b = frame.color.shape[0]
+    if config.exposure == "absolute":
+        return jnp.ones((b, 1, 1, 1), jnp.float32)
+    mean = jnp.mean(frame.color.astype(jnp.float32), axis=(1, 2, 3), keepdims=True)
+    return 1.0 / jnp.maximum(mean, EXPOSURE_FLOOR)
 
 
 def clamp_history(rep, frame: Frame, config: Config):
@@ -216,19 +260,19 @@ def kernels(params, x, phase, valid=None):
     return jax.nn.softmax(logits, -1, where=valid), hidden
 
 
-def valid_taps(frame: Frame, config: Config):
+def valid_taps(x, config: Config):
     """The taps the softmax runs over, ``[B,H,W,2*K*K]``: every tap for the JAU mix;
-    for the samples mix, the current taps that hold a sample and every history tap."""
+    for the samples mix, the current taps that hold a sample (read from the sample
+    mask in ``prepare``'s input ``x``) and every history tap."""
     if config.current == "jau":
         return None
-    cur = _near(sample_mask(frame, config))[..., 0, :] > 0.5
+    cur = _near(x[..., IN_CHANNELS:IN_CHANNELS + 1])[..., 0, :] > 0.5
     return jnp.concatenate([cur, jnp.ones_like(cur)], -1)
 
 
 def step(params, state: State, frame: Frame, config: Config = Config()):
     x, cur, rep = prepare(state, frame, config)
-    wts, hidden = kernels(params, x, phase_index(frame.jitter, config),
-                          valid_taps(frame, config))
+    wts, hidden = kernels(params, x, phase_index(frame.jitter, config), valid_taps(x, config))
     n = K * K
     out = (jnp.einsum("bhwcn,bhwn->bhwc", _near(cur), wts[..., :n])
            + jnp.einsum("bhwcn,bhwn->bhwc", _near(rep[..., :3]), wts[..., n:]))
@@ -260,6 +304,8 @@ def cost(config: Config, H, W) -> Cost:
     warp = px * (16 * 8 * 2 + 20) + px * 4 * 3 * 2
     if config.history == "clamped":  # min and max of 9 samples at LR, then a clip at HR
         warp += lr * 2 * 8 * 3 + px * 2 * 3
+    if config.exposure == "normalized":  # the frame's mean, then the colour inputs scaled
+        warp += lr * 3 + px * 3 * (2 + int(config.current == "samples"))
     compulsory = 4 * (lr * 6 + 2 * px * 8 + px * 3)
     act = 4 * 2 * px * (config.in_channels() + 3 * config.width + n + HIDDEN)
     return Cost(net + apply + warp, net, compulsory, compulsory + act)
@@ -272,6 +318,7 @@ SPECS = (Spec("kpn", make, lambda f: Config(factor=f), cost, trainable=True, los
 
 
 
-__all__ = ["CURRENT", "Config", "HISTORY", "SAMPLES_PRIOR", "SPECS", "State", "add_sample_mask",
-           "clamp_history", "cost", "init", "init_state", "kernels", "make", "phase_index",
-           "prepare", "sample_mask", "step", "valid_taps"]
+__all__ = ["CURRENT", "Config", "EXPOSURE", "EXPOSURE_FLOOR", "HISTORY", "SAMPLES_PRIOR", "SPECS",
+           "State", "add_sample_mask", "clamp_history", "cost", "exposure_scale", "init",
+           "init_state", "kernels", "make", "normalize_exposure", "phase_index", "prepare",
+           "sample_mask", "step", "valid_taps"]

@@ -31,7 +31,10 @@ up-sampling task; docs/comparison.md), each pinned by the test against jtus:
 - with ``clamp=True`` (jtus's ``history="clamped"``): the reprojected RGB is clamped,
   per channel, to the min and max of the 3x3 LR samples around the sample nearest
   each HR pixel's jitter-aligned position, every tap clamped to the image (TUS's
-  neighbourhood clamp), before it enters the network and the history kernel.
+  neighbourhood clamp), before it enters the network and the history kernel;
+- with ``normalize=True`` (jtus's ``exposure="normalized"``): the colour the network
+  reads (the up-sampled colour, the feedback RGB, the placed samples) is divided by
+  the frame's mean colour, at least 1e-4; the kernels mix the colours undivided.
 """
 
 import numpy as np
@@ -106,14 +109,21 @@ def catmull_rom(img, x, y):
     return out
 
 
+def aligned(color, jitter, f):
+    """Where each HR centre P reads the LR image, ``P / f - jitter + 0.5`` in LR pixels:
+    ``(x [B,1,W'], y [B,H',1])``."""
+    _, _, h, w = color.shape
+    xs = (torch.arange(w * f, dtype=color.dtype) + 0.5) / f
+    ys = (torch.arange(h * f, dtype=color.dtype) + 0.5) / f
+    return (xs[None, None, :] - jitter[:, 0, None, None] + 0.5,
+            ys[None, :, None] - jitter[:, 1, None, None] + 0.5)
+
+
 def jau(color, jitter, f):
     """Jitter-aligned bilinear up-sampling: HR centre P reads the LR image at
     ``P / f - jitter + 0.5`` (border padding)."""
     b, _, h, w = color.shape
-    xs = (torch.arange(w * f, dtype=color.dtype) + 0.5) / f
-    ys = (torch.arange(h * f, dtype=color.dtype) + 0.5) / f
-    gx = xs[None, None, :] - jitter[:, 0, None, None] + 0.5
-    gy = ys[None, :, None] - jitter[:, 1, None, None] + 0.5
+    gx, gy = aligned(color, jitter, f)
     grid = torch.stack([(2 * gx / w - 1).expand(b, h * f, w * f),
                         (2 * gy / h - 1).expand(b, h * f, w * f)], -1)
     return F.grid_sample(color, grid, mode="bilinear", padding_mode="border",
@@ -125,10 +135,8 @@ def box(color, jitter, f):
     -1, 0, 1 from the sample nearest its jitter-aligned position ``P / f - jitter +
     0.5``, read one by one with their indices clamped to the image."""
     b, c, h, w = color.shape
-    xs = (torch.arange(w * f, dtype=color.dtype) + 0.5) / f
-    ys = (torch.arange(h * f, dtype=color.dtype) + 0.5) / f
-    nx = torch.floor(xs[None, None, :] - jitter[:, 0, None, None] + 0.5).clamp(-1, w)
-    ny = torch.floor(ys[None, :, None] - jitter[:, 1, None, None] + 0.5).clamp(-1, h)
+    gx, gy = aligned(color, jitter, f)
+    nx, ny = torch.floor(gx).clamp(-1, w), torch.floor(gy).clamp(-1, h)
     nx, ny = nx.expand(b, h * f, w * f), ny.expand(b, h * f, w * f)
     flat = color.reshape(b, c, h * w)
     taps = []
@@ -141,7 +149,7 @@ def box(color, jitter, f):
 
 
 def step(net, feedback, color, depth, motion, jitter, reset, phases, f, near=0.1, far=100.0,
-         samples=False, clamp=False):
+         samples=False, clamp=False, normalize=False):
     """One frame, NCHW: ``feedback [B,8,H,W]`` (None on a sequence's first frame);
     returns ``(rgb [B,3,H,W], feedback)``."""
     b, _, h, w = color.shape
@@ -162,12 +170,13 @@ def step(net, feedback, color, depth, motion, jitter, reset, phases, f, near=0.1
     if clamp:
         lo, hi = box(color, jitter, f)
         rep = torch.cat([torch.minimum(torch.maximum(rep[:, :3], lo), hi), rep[:, 3:]], 1)
-    x = torch.cat([cur, up(lin), mv, rep], 1)
+    s = 1.0 / color.mean((1, 2, 3), keepdim=True).clamp_min(1e-4) if normalize else 1.0
+    x = torch.cat([cur * s, up(lin), mv, rep[:, :3] * s, rep[:, 3:]], 1)
     valid = None
     if samples:
         mask = zero_upsample(torch.ones_like(depth), jitter, f)
         cur = zero_upsample(color, jitter, f)
-        x = torch.cat([x, mask, cur], 1)
+        x = torch.cat([x, mask, cur * s], 1)
         taps = F.unfold(mask, 5, padding=2).view(b, 25, h * f, w * f) > 0.5
         valid = torch.cat([taps, torch.ones_like(taps)], 1)
     d = (jitter[:, None, :] - phases[None]).abs().sum(-1)

@@ -151,9 +151,8 @@ def jitter_aligned_upsample(x, jitter, factor, method="bilinear", a=-0.75):
         wx = _phase_weights(base[None, :] - j[:, 0:1])                      # [B,f,3]
         wy = _phase_weights(base[None, :] - j[:, 1:2])
         return _bilinear_phases(x, factor, wx, wy)
-    xy = hr_to_lr_coords(b, h, w, factor, x.dtype)
-    xy = xy - jitter.astype(x.dtype)[:, None, None, :] + 0.5
-    return sample(x, xy, method=method, a=a)
+    return sample(x, jitter_aligned_coords(jitter, b, h, w, factor, x.dtype), method=method,
+                  a=a)
 
 
 def jitter_aligned_coords(jitter, batch, height, width, factor, dtype=jnp.float32):

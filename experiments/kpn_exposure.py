@@ -1,0 +1,51 @@
+"""A trained KPN switched to exposure-normalized colour (``kpn.Config.exposure``),
+starting from what it computes at a given exposure: the first convolution's colour
+weights are multiplied by that mean colour (``kpn.normalize_exposure``), and the run
+config gains ``exposure="normalized"``, so ``python -m jtus.train --init-from
+OUT.msgpack --model-override exposure=normalized`` fine-tunes it:
+
+    python experiments/kpn_exposure.py experiments/weights/kpn-clamp-div-x2.msgpack \\
+        --mean 0.37 --out runs/kpn-exposure-x2/init
+
+writes ``runs/kpn-exposure-x2/init.msgpack`` and ``init.json``. ``--mean`` defaults to
+the median frame mean of the training data the network learnt most from (``diverse``'s
+train split: 0.37 at both factors). Refuses a checkpoint of another model, or one whose
+KPN is normalized already, before anything is written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+
+from jtus import checkpoint, config, loading, recipe
+from jtus.models import kpn
+
+
+def normalized(params, cfg, mean):
+    """``(params, run config)`` of the KPN in ``params`` fed exposure-normalized colour."""
+    if cfg.model != "kpn":
+        raise ValueError(f"model: expected a kpn checkpoint, got {cfg.model}")
+    model_config = recipe.model_config(cfg)
+    overrides = dict(cfg.model_overrides)
+    overrides["exposure"] = "normalized"
+    return (kpn.normalize_exposure(params, model_config, mean),
+            dataclasses.replace(cfg, model_overrides=tuple(overrides.items())))
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("checkpoint", help="a KPN checkpoint or exported weights (.msgpack)")
+    p.add_argument("--mean", type=float, default=0.37,
+                   help="the frame mean colour at which the outputs stay as they are")
+    p.add_argument("--out", required=True, help="output base: writes OUT.msgpack, OUT.json")
+    args = p.parse_args(argv)
+    try:
+        params, cfg = normalized(*loading.load_params(args.checkpoint), args.mean)
+    except ValueError as e:
+        raise SystemExit(f"{args.checkpoint}: {e}") from e
+    print(checkpoint.write_params(args.out, params, config.to_json(cfg)))
+
+
+if __name__ == "__main__":
+    main()
