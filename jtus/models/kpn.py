@@ -38,11 +38,12 @@ history the scene has left behind (a light that dims while the camera holds stil
 would otherwise stay in the output for as long as the network keeps weighting it.
 
 ``exposure="normalized"`` divides the colour the network sees (the JAU colour, the
-history's RGB and the placed samples) by the frame's mean LR colour (per video, over
-pixels and channels, floored at ``EXPOSURE_FLOOR``); the kernels still mix the colours
-as they are. The network's weights then do not depend on the scene's exposure: scaling
-a video's colour by ``s`` scales every output by ``s``, as it does TUS's, where a network
-fed absolute colour learns one blend for dark levels and another for bright ones.
+history's RGB and the placed samples) by the frame's mean LR colour (each batch
+element's own, over pixels and channels, floored at ``EXPOSURE_FLOOR``); the kernels
+still mix the colours as they are. The network's weights then do not depend on the
+scene's exposure: scaling a video's colour by ``s`` scales every output by ``s``, as it
+does TUS's, where a network fed absolute colour can learn one blend for dark levels
+and another for bright ones (docs/comparison.md: tried, and not adopted).
 
 The state is ``[B,H,W,8]``: the output RGB and the hidden channels.
 """
@@ -216,12 +217,11 @@ def prepare(state: State, frame: Frame, config: Config):
 
 
 def exposure_scale(frame: Frame, config: Config):
-    """``[B,1,1,1]``: what the network's colour inputs are multiplied by: 1 for
-    ``exposure="absolute"``, else one over the frame's mean LR colour (at least
-    ``EXPOSURE_FLOOR``)."""
-    b = frame.color.shape[0]
+    """What the network's colour inputs are multiplied by: ``1.0`` for
+    ``exposure="absolute"`` (a Python float, so the graph is unchanged), else ``[B,1,1,1]``,
+    one over each frame's mean LR colour (at least ``EXPOSURE_FLOOR``)."""
     if config.exposure == "absolute":
-        return jnp.ones((b, 1, 1, 1), jnp.float32)
+        return 1.0
     mean = jnp.mean(frame.color.astype(jnp.float32), axis=(1, 2, 3), keepdims=True)
     return 1.0 / jnp.maximum(mean, EXPOSURE_FLOOR)
 
