@@ -10,6 +10,7 @@ starting parameters of a run (``init_params``) and a run's parameters exported a
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import sys
 from typing import Any, NamedTuple
@@ -155,10 +156,33 @@ def init_params(config: Config):
     return recipe.model_for(config).init(jax.random.PRNGKey(config.seed))
 
 
-def export_params(workdir, out_base):
+def _check_same_start(started, named):
+    """Refuse ``named`` as the weights a run started from unless it holds the same
+    parameters as ``started`` (the run's own ``init_from``, when it still exists)."""
+    if not os.path.exists(named):
+        raise FileNotFoundError(f"init_from: {named}: no such weights")
+    if not started or not os.path.exists(started):
+        return
+    same = jax.tree_util.tree_map(lambda a, b: bool(jnp.array_equal(a, b)),
+                                  load_params(started)[0], load_params(named)[0])
+    if not all(jax.tree_util.tree_leaves(same)):
+        raise ValueError(f"init_from: {named} does not hold the parameters the run "
+                         f"started from ({started})")
+
+
+def export_params(workdir, out_base, init_from=None):
     """Write a run's parameters alone (no optimizer state) with its config and
     per-epoch log: ``out_base.msgpack``, ``.json``, ``-training.csv`` (the form
-    ``jtus/weights/`` ships and ``load`` reads)."""
+    ``jtus/weights/`` ships and ``load`` reads).
+
+    ``init_from`` (exported weights) replaces the run's own ``init_from`` in the
+    written config, for a fine-tune that started from a run's checkpoint (a path
+    under ``runs/`` that is not kept) whose parameters were exported there: the chain
+    of fine-tunes then stays traceable, and a budget can count every run in it. It must
+    hold exactly the parameters the run started from, while those can still be read."""
     params, config = load_params(os.path.join(workdir, checkpoint.CHECKPOINT))
+    if init_from is not None:
+        _check_same_start(config.init_from, init_from)
+        config = dataclasses.replace(config, init_from=init_from)
     return checkpoint.write_params(out_base, params, run_config.to_json(config),
                                    os.path.join(workdir, "metrics.csv"))

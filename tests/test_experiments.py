@@ -569,3 +569,33 @@ def test_replayed_first_epoch_takes_the_logged_steps(tiny_data, tmp_path):
     assert frozen[0] == rows[0] and frozen[1][2] != rows[1][2]  # no update: step 2 differs
     big, median = rs.spikes([(1, 0.0, 1.0), (2, 0.0, 2.0), (3, 0.0, 500.0)], 100.0)
     assert median == 2.0 and [r[0] for r in big] == [3]
+
+
+def test_exported_fine_tune_names_the_exported_weights_it_started_from(tmp_path):
+    """``loading.export_params(..., init_from=)``: the exported config names the given
+    weights as the run's start when they hold the parameters the run started from;
+    weights that differ, or that do not exist, are refused by name before anything is
+    written."""
+    from jtus.config import Config
+    from jtus.models import kpn
+
+    start = kpn.init(jax.random.PRNGKey(0), kpn.Config(factor=2))
+    other = kpn.init(jax.random.PRNGKey(1), kpn.Config(factor=2))
+    cfg = Config(model="kpn", factor=2)
+    started = checkpoint.write_params(str(tmp_path / "runs-start"), start,
+                                      config_mod.to_json(cfg))
+    same = checkpoint.write_params(str(tmp_path / "exported"), start, config_mod.to_json(cfg))
+    differs = checkpoint.write_params(str(tmp_path / "differs"), other,
+                                      config_mod.to_json(cfg))
+    run = tmp_path / "run"
+    run.mkdir()
+    checkpoint.write_params(str(run / "checkpoint"), other, config_mod.to_json(
+        dataclasses.replace(cfg, init_from=started)))
+    loading.export_params(str(run), str(tmp_path / "out"), init_from=same)
+    assert loading.load_params(str(tmp_path / "out.msgpack"))[1].init_from == same
+    with pytest.raises(ValueError, match="does not hold the parameters the run started"):
+        loading.export_params(str(run), str(tmp_path / "bad"), init_from=differs)
+    with pytest.raises(FileNotFoundError, match="init_from: .*nowhere.msgpack: no such"):
+        loading.export_params(str(run), str(tmp_path / "bad"),
+                              init_from=str(tmp_path / "nowhere.msgpack"))
+    assert not (tmp_path / "bad.json").exists()

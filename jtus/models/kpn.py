@@ -65,7 +65,11 @@ from jtus.models.base import Cost, Model, Spec, bind, reset_select
 
 HIDDEN = 5
 K = 5  # kernel size
+# prepare's input: JAU colour (0-2), depth (3), motion (4-5), history RGB (6-8) and
+# hidden channels (9-13); then the sample mask (channel IN_CHANNELS) and, for the
+# samples mix, the placed samples (the last three)
 IN_CHANNELS = 3 + 1 + 2 + 3 + HIDDEN
+COLOUR_INPUTS = (0, 1, 2, 6, 7, 8)  # the colour channels among the first IN_CHANNELS
 SWITCHED = ("conv2", "conv3", "kernel")
 CURRENT = ("jau", "samples")
 HISTORY = ("raw", "clamped")
@@ -168,7 +172,8 @@ def normalize_exposure(params, config: Config, mean: float):
     if n != config.in_channels():
         raise ValueError(f"params: conv1 takes {n} input channels, expected "
                          f"{config.in_channels()} for {config}")
-    colour = [0, 1, 2, 6, 7, 8] + ([n - 3, n - 2, n - 1] if config.current == "samples" else [])
+    colour = list(COLOUR_INPUTS) + ([n - 3, n - 2, n - 1] if config.current == "samples"
+                                    else [])
     scale = jnp.ones((n,), jnp.float32).at[jnp.asarray(colour)].set(mean)
     return {**params, "conv1": {**conv1, "kernel": conv1["kernel"] * scale[:, None]}}
 
@@ -318,7 +323,7 @@ SPECS = (Spec("kpn", make, lambda f: Config(factor=f), cost, trainable=True, los
 
 
 
-__all__ = ["CURRENT", "Config", "EXPOSURE", "EXPOSURE_FLOOR", "HISTORY", "SAMPLES_PRIOR", "SPECS",
-           "State", "add_sample_mask", "clamp_history", "cost", "exposure_scale", "init",
-           "init_state", "kernels", "make", "normalize_exposure", "phase_index", "prepare",
-           "sample_mask", "step", "valid_taps"]
+__all__ = ["COLOUR_INPUTS", "CURRENT", "Config", "EXPOSURE", "EXPOSURE_FLOOR", "HISTORY",
+           "SAMPLES_PRIOR", "SPECS", "State", "add_sample_mask", "clamp_history", "cost",
+           "exposure_scale", "init", "init_state", "kernels", "make", "normalize_exposure",
+           "phase_index", "prepare", "sample_mask", "step", "valid_taps"]
