@@ -222,21 +222,28 @@ def second_stage(model, factor, root=ROOT):
 
 
 # comparison systems whose design was changed and retrained, each adopted on the
-# validation splits over its earlier rows (docs/comparison.md): model -> (exported
-# weights' base name under experiments/weights/, the table's description of them)
+# validation splits over its earlier rows (docs/comparison.md), at the factors where
+# it was: model -> (exported weights' base name under experiments/weights/, the
+# table's description of them, the factors adopted)
 REDESIGNED = {"mlp": ("mlp-jau", "JAU base, contrast-normalized patches; both families' "
-                                 "holds"),
+                                 "holds", FACTORS),
               "kpn": ("kpn-clamp", "the current kernel mixes the samples themselves, the "
-                                   "history clamped to their box; diverse, then fine-tunes")}
+                                   "history clamped to their box; diverse, then fine-tunes",
+                      FACTORS),
+              "nsrr-fast": ("nsrr-fast-exposure", "exposure-normalized colour; diverse, then "
+                                                  "fine-tunes on game and diverse half and half",
+                            FACTORS),
+              "nsrr": ("nsrr-exposure", "exposure-normalized colour; diverse, then fine-tunes on "
+                                        "game and diverse half and half", FACTORS)}
 
 
 def redesigned(model, factor, root=ROOT):
     """``(path, rows, config, description)`` of a comparison system's adopted redesign at
     ``factor`` (``REDESIGNED``: ``experiments/weights/<name>-x<f>`` with its config and
     per-epoch log), or None where it has none."""
-    if model not in REDESIGNED:
+    if model not in REDESIGNED or factor not in REDESIGNED[model][2]:
         return None
-    name, description = REDESIGNED[model]
+    name, description, _ = REDESIGNED[model]
     saved = _exported(root, name, factor)
     return None if saved is None else (*saved, description)
 

@@ -152,8 +152,31 @@ def init_params(config: Config):
             raise ValueError(f"init_from: {config.init_from} holds {init_cfg.model} at "
                              f"{init_cfg.factor}x, this run trains {config.model} at "
                              f"{config.factor}x")
+        changed = model_changes(recipe.model_config(init_cfg), recipe.model_config(config))
+        if changed:
+            print(f"note: init_from: {config.init_from} was trained with another design "
+                  f"than this run's model ({'; '.join(changed)}); --model-override sets "
+                  f"this run's", file=sys.stderr)
         return params
     return recipe.model_for(config).init(jax.random.PRNGKey(config.seed))
+
+
+def model_changes(before, after):
+    """``["field: old -> new", ...]`` for the fields in which model config ``after``
+    differs from ``before`` (dataclasses of one model module)."""
+    return [f"{f.name}: {getattr(before, f.name)!r} -> {getattr(after, f.name)!r}"
+            for f in dataclasses.fields(before)
+            if getattr(before, f.name) != getattr(after, f.name)]
+
+
+def training_log(path):
+    """The per-epoch log beside saved weights ``path``: ``<base>-training.csv`` of
+    exported weights, ``metrics.csv`` beside a run's checkpoint; None if there is none."""
+    base = path[:-len(".msgpack")] if path.endswith(".msgpack") else path
+    for log in (base + "-training.csv", os.path.join(os.path.dirname(path), "metrics.csv")):
+        if os.path.exists(log):
+            return log
+    return None
 
 
 def _check_same_start(started, named):
@@ -185,4 +208,4 @@ def export_params(workdir, out_base, init_from=None):
         _check_same_start(config.init_from, init_from)
         config = dataclasses.replace(config, init_from=init_from)
     return checkpoint.write_params(out_base, params, run_config.to_json(config),
-                                   os.path.join(workdir, "metrics.csv"))
+                                   training_log(os.path.join(workdir, checkpoint.CHECKPOINT)))

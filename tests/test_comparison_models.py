@@ -69,7 +69,9 @@ def test_nsrr_unet_widths_chain_and_fast_halves_them():
     ({"extract": (32, 32, 7)}, r"^extract: the last width must be 8, got \(32, 32, 7\)$"),
     ({"unet": (64,) * 8}, r"^unet: expected 9 widths \(the 10th layer outputs 3\), got "
                           r"\(64, 64, 64, 64, 64, 64, 64, 64\)$"),
-    ({"frames": 0}, r"^frames: expected >= 1, got 0$")])
+    ({"frames": 0}, r"^frames: expected >= 1, got 0$"),
+    ({"exposure": "auto"}, r"^exposure: expected one of \('absolute', 'normalized'\), "
+                           r"got 'auto'$")])
 def test_nsrr_config_names_the_bad_field(changes, message):
     """A bad NSRR setting is refused with an error that starts with its field's name and
     says what was expected and what it got; the boundaries are accepted."""
@@ -445,11 +447,14 @@ def test_kpn_matches_an_independent_torch_kpn(factor, current, history, exposure
         assert np.abs(np.asarray(outs_raw) - np.asarray(outs)).max() > 1e-3
 
 
-@pytest.mark.parametrize("factor", [4, 2])
-def test_nsrr_matches_an_independent_torch_nsrr(factor):
+@pytest.mark.parametrize("factor,exposure", [(4, "absolute"), (2, "absolute"),
+                                             (4, "normalized")])
+def test_nsrr_matches_an_independent_torch_nsrr(factor, exposure):
     """jtus's NSRR against jtus/reference/torch_nsrr.py (its own nn.Sequential layout converted
     by a function, zero-up-sampling, iterated warping and reweighting from the paper's
-    text) over 7 frames (the 4-frame window rolls) with motion and a camera cut."""
+    text) over 7 frames (the 4-frame window rolls) with motion and a camera cut; with
+    ``exposure="normalized"`` on colour darkened 20x, where the normalization changes
+    every output."""
     import torch
 
     from jtus import models, rollout
@@ -458,7 +463,9 @@ def test_nsrr_matches_an_independent_torch_nsrr(factor):
     frames, _ = seqdata.sequence(T=7, B=2, h=32 // factor, w=32 // factor, factor=factor,
                                  seed=12, max_motion=1.5, reset_at=(4, 1))
     frames.reset[0] = True
-    model = models.build("nsrr", factor)
+    if exposure == "normalized":
+        frames = frames._replace(color=frames.color / 20)
+    model = models.build("nsrr", factor, exposure=exposure)
     torch.manual_seed(1)
     net = torch_nsrr.NSRR()
     params = jax.tree_util.tree_map(jnp.asarray, torch_nsrr.to_jtus(net))
@@ -471,12 +478,45 @@ def test_nsrr_matches_an_independent_torch_nsrr(factor):
         for t in range(7):
             out, prev = torch_nsrr.step(net, prev, nchw(frames.color[t]), nchw(frames.depth[t]),
                                         nchw(frames.motion[t]), torch.from_numpy(frames.jitter[t]),
-                                        torch.from_numpy(frames.reset[t]), factor)
+                                        torch.from_numpy(frames.reset[t]), factor,
+                                        normalize=exposure == "normalized")
             ref.append(out.numpy().transpose(0, 2, 3, 1))
     ref = np.stack(ref)
-    # float32 through a 10-layer U-Net; measured max 2.6e-8 on outputs up to 0.07
-    np.testing.assert_allclose(np.asarray(outs), ref, rtol=0, atol=2e-7)
-    assert np.abs(ref).max() > 1e-2  # not a comparison of zeros
+    # float32 through a 10-layer U-Net; measured max 2.6e-8 on outputs up to 0.07 (and,
+    # normalized, 1.6e-9 on outputs up to 0.002: the error scales with the output)
+    out_scale = 1 / 20 if exposure == "normalized" else 1.0
+    np.testing.assert_allclose(np.asarray(outs), ref, rtol=0, atol=2e-7 * out_scale)
+    assert np.abs(ref).max() > 1e-2 * out_scale  # not a comparison of zeros
+
+
+def test_nsrr_normalized_exposure_scales_outputs_with_the_colour(factor=2):
+    """NSRR-fast with ``exposure="normalized"``: over 6 frames with motion and a camera
+    cut (the previous-frame window fills and rolls), the video's colour times 8 or times
+    1/4 gives the outputs times 8 or 1/4 (powers of two, so the networks read the same
+    numbers; asserted to 1e-6 relative). NSRR fed absolute colour does not, which is
+    what the test catches if the normalization is dropped at either end."""
+    frames, _ = seqdata.sequence(T=6, B=2, h=16 // factor, w=16 // factor, factor=factor,
+                                 seed=7, max_motion=1.5, reset_at=(4, 1))
+    jf = seqdata.to_jax(frames)
+
+    def run(scale, exposure):
+        m = models.build("nsrr-fast", factor, exposure=exposure)
+        fr = jf._replace(color=jf.color * scale)
+        return rollout.outputs(m.step, m.init(jax.random.PRNGKey(1)),
+                               rollout.first_state(m, fr), fr)[0]
+
+    outs = np.asarray(run(1.0, "normalized"))
+    assert np.abs(outs).max() > 1e-2
+    for scale in (8.0, 0.25):
+        np.testing.assert_allclose(np.asarray(run(scale, "normalized")), scale * outs,
+                                   rtol=1e-6, atol=1e-7)
+    absolute = np.asarray(run(1.0, "absolute"))
+    assert np.abs(np.asarray(run(8.0, "absolute")) - 8.0 * absolute).max() > 1e-3
+    # the cost model counts the frame's mean, the scaled LR colour and the scaled output
+    config = nsrr.Config(factor=factor, fast=True, exposure="normalized")
+    absolute_cost = nsrr.cost(dataclasses.replace(config, exposure="absolute"), 64, 64)
+    assert (nsrr.cost(config, 64, 64).flops - absolute_cost.flops
+            == (64 // factor) ** 2 * 6 + 64 * 64 * 3)
 
 
 def test_nsrr_reset_forgets_the_previous_features():

@@ -200,30 +200,36 @@ def test_second_stage_needs_weights_config_and_log(tmp_path):
 def test_redesign_needs_weights_config_and_log(tmp_path, monkeypatch):
     """experiments/common.redesigned: a system's adopted redesign is
     ``experiments/weights/<name>-x<f>`` (``REDESIGNED``) with its config and log beside
-    it, described for the table; a missing file, or a system without one, gives None."""
+    it, described for the table, at the factors where it was adopted; a missing file, a
+    factor not adopted, or a system without one, gives None."""
     common = seqdata.load_script("common")
-    monkeypatch.setattr(common, "REDESIGNED", {"kpn": ("kpn-new", "a new design")})
+    monkeypatch.setattr(common, "REDESIGNED", {"kpn": ("kpn-new", "a new design", (4,))})
     base = tmp_path / "experiments" / "weights"
     base.mkdir(parents=True)
-    (base / "kpn-new-x4.msgpack").write_bytes(b"w")
-    (base / "kpn-new-x4.json").write_text(json.dumps({"config": {"epochs": 1}}))
+    for f in (4, 2):
+        (base / f"kpn-new-x{f}.msgpack").write_bytes(b"w")
+        (base / f"kpn-new-x{f}.json").write_text(json.dumps({"config": {"epochs": 1}}))
     assert common.redesigned("kpn", 4, str(tmp_path)) is None  # no log
-    (base / "kpn-new-x4-training.csv").write_text("epoch,step,val_psnr,seconds\n1,100,30,9\n")
+    for f in (4, 2):
+        (base / f"kpn-new-x{f}-training.csv").write_text(
+            "epoch,step,val_psnr,seconds\n1,100,30,9\n")
     path, rows, cfg, what = common.redesigned("kpn", 4, str(tmp_path))
     assert (path, rows[0]["step"], cfg, what) == (
         "experiments/weights/kpn-new-x4.msgpack", "100", {"epochs": 1}, "a new design")
-    assert common.redesigned("kpn", 2, str(tmp_path)) is None
+    assert common.redesigned("kpn", 2, str(tmp_path)) is None  # not adopted at 2x
     assert common.redesigned("nsrr", 4, str(tmp_path)) is None
 
 
 @pytest.mark.parametrize("factor", [4, 2])
 def test_adopted_redesigns_load_as_the_model_they_were_trained_as(factor):
-    """Every ``REDESIGNED`` entry's exported weights exist at both factors and load with
-    their run config into the model they name, its config overrides included (the
-    parameter tree equals a fresh ``init``'s, shape for shape), so the table scores what
-    was trained."""
+    """Every ``REDESIGNED`` entry's exported weights exist at each factor it was adopted
+    at and load with their run config into the model they name, its config overrides
+    included (the parameter tree equals a fresh ``init``'s, shape for shape), so the
+    table scores what was trained."""
     common = seqdata.load_script("common")
-    for model, (name, _) in common.REDESIGNED.items():
+    for model, (name, _, factors) in common.REDESIGNED.items():
+        if factor not in factors:
+            continue
         path, rows, _, _ = common.redesigned(model, factor)
         params, cfg = loading.load_params(os.path.join(common.ROOT, path))
         assert (cfg.model, cfg.factor) == (model, factor) and rows
@@ -333,8 +339,10 @@ def test_comparison_table_only_rescores_the_named_systems(tmp_path, monkeypatch)
 
     monkeypatch.setattr(ct, "score", scorer(20.0))
     # NSRR without any weights, whatever runs the repository holds at the time
-    find = ct.find
+    find, redesigned = ct.find, ct.redesigned
     monkeypatch.setattr(ct, "find", lambda m, f, root: None if m == "nsrr" else find(m, f, root))
+    monkeypatch.setattr(ct, "redesigned", lambda m, f, root: None if m == "nsrr"
+                        else redesigned(m, f, root))
     monkeypatch.setattr(sys, "argv", ["experiments/comparison_table.py", "--first"])
     root = tmp_path / "root"  # the data is only checked to exist: score is replaced
     (root / "data").mkdir(parents=True)
@@ -512,31 +520,42 @@ def test_kpn_checkpoint_gains_the_sample_mask_as_a_no_op(tmp_path):
     assert not (tmp_path / "again.msgpack").exists() and not (tmp_path / "no.json").exists()
 
 
-def test_kpn_checkpoint_switched_to_normalized_exposure_keeps_its_outputs(tmp_path):
-    """experiments/kpn_exposure.py writes a samples KPN checkpoint fed exposure-normalized
-    colour, with ``exposure`` in its config, that computes on a frame whose mean colour
-    is ``--mean`` what the original computes (the first convolution's colour weights
-    times the mean); a normalized checkpoint, another model's, or a mean that is not
-    positive is refused by name, and nothing is written."""
+@pytest.mark.parametrize("name,overrides", [
+    ("kpn", (("current", "samples"), ("history", "clamped"))), ("nsrr-fast", ())])
+def test_checkpoint_switched_to_normalized_exposure_keeps_its_outputs(tmp_path, name,
+                                                                      overrides):
+    """experiments/exposure_normalize.py writes a checkpoint (a samples KPN; NSRR-fast)
+    fed exposure-normalized colour, with ``exposure`` in its config and the source's
+    per-epoch log beside it, that computes over 3 frames whose mean colour is
+    ``--mean`` what the original computes (the weights reading colour times the mean,
+    NSRR's output layer divided by it); a normalized
+    checkpoint, another model's, or a mean that is not positive is refused by name,
+    and nothing is written."""
+    from jtus import rollout
     from jtus.config import Config
-    from jtus.models import kpn
 
-    ks = seqdata.load_script("kpn_exposure")
-    overrides = (("current", "samples"), ("history", "clamped"))
-    cfg = Config(model="kpn", factor=2, model_overrides=overrides)
-    config = kpn.Config(factor=2, current="samples", history="clamped")
-    params = kpn.init(jax.random.PRNGKey(0), config)
-    src = checkpoint.write_params(str(tmp_path / "kpn"), params, config_mod.to_json(cfg))
-    frames, _ = seqdata.to_jax(seqdata.sequence(T=1, B=1, h=6, w=6, factor=2))
-    fr = seqdata.at(frames, 0)
-    mean = float(np.asarray(fr.color, np.float32).mean())
+    ks = seqdata.load_script("exposure_normalize")
+    cfg = Config(model=name, factor=2, model_overrides=overrides)
+    original = recipe.model_for(cfg)
+    params = original.init(jax.random.PRNGKey(0))
+    (tmp_path / "log.csv").write_text("epoch,step,seconds\n1,100,5.0\n")
+    src = checkpoint.write_params(str(tmp_path / name), params, config_mod.to_json(cfg),
+                                  str(tmp_path / "log.csv"))
+    frames, _ = seqdata.sequence(T=3, B=1, h=8, w=8, factor=2, seed=3, max_motion=1.0)
+    mean = 0.2
+    frames = frames._replace(color=frames.color * mean
+                             / frames.color.mean(axis=(2, 3, 4), keepdims=True))
+    jf = seqdata.to_jax(frames)
     ks.main([src, "--mean", repr(mean), "--out", str(tmp_path / "norm")])
     norm, ncfg = loading.load_params(str(tmp_path / "norm.msgpack"))
     assert dict(ncfg.model_overrides) == {**dict(overrides), "exposure": "normalized"}
+    # the source's per-epoch log travels, so a training budget counts the runs before
+    assert (tmp_path / "norm-training.csv").read_text() == (tmp_path / "log.csv").read_text()
     model = recipe.model_for(ncfg)
-    want = kpn.step(params, kpn.init_state(fr, config), fr, config)[0]
-    got = model.step(norm, model.init_state(fr), fr)[0]
+    want, _ = rollout.outputs(original.step, params, rollout.first_state(original, jf), jf)
+    got, _ = rollout.outputs(model.step, norm, rollout.first_state(model, jf), jf)
     np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=0, atol=1e-6)
+    assert np.abs(np.asarray(want)).max() > 1e-2  # not a comparison of zeros
     with pytest.raises(SystemExit, match="exposure is already normalized"):
         ks.main([str(tmp_path / "norm.msgpack"), "--out", str(tmp_path / "again")])
     with pytest.raises(SystemExit, match="mean: expected a positive mean colour, got 0.0"):
@@ -545,7 +564,8 @@ def test_kpn_checkpoint_switched_to_normalized_exposure_keeps_its_outputs(tmp_pa
     other = checkpoint.write_params(str(tmp_path / "mlp"), mlp.init(
         jax.random.PRNGKey(0), mlp.Config(factor=2)), config_mod.to_json(
         Config(model="mlp", factor=2)))
-    with pytest.raises(SystemExit, match="expected a kpn checkpoint"):
+    with pytest.raises(SystemExit, match=r"expected a checkpoint of one of \('kpn', 'nsrr', "
+                                         r"'nsrr-fast'\), got mlp"):
         ks.main([other, "--out", str(tmp_path / "no")])
     assert not any((tmp_path / f"{n}.msgpack").exists() for n in ("again", "zero", "no"))
 
@@ -599,3 +619,23 @@ def test_exported_fine_tune_names_the_exported_weights_it_started_from(tmp_path)
         loading.export_params(str(run), str(tmp_path / "bad"),
                               init_from=str(tmp_path / "nowhere.msgpack"))
     assert not (tmp_path / "bad.json").exists()
+
+
+def test_fine_tune_that_changes_the_model_design_says_so(tmp_path, capsys):
+    """``loading.init_params``: starting from weights trained with another model design
+    (here NSRR-fast switched to exposure-normalized colour, started without the
+    override) prints a note naming each changed field; the same design prints none."""
+    from jtus.config import Config
+    from jtus.models import nsrr
+
+    normalized = (("exposure", "normalized"),)
+    cfg = Config(model="nsrr-fast", factor=2, model_overrides=normalized)
+    src = checkpoint.write_params(str(tmp_path / "norm"), nsrr.init(
+        jax.random.PRNGKey(0), nsrr.Config(factor=2, fast=True, exposure="normalized")),
+        config_mod.to_json(cfg))
+    loading.init_params(dataclasses.replace(cfg, init_from=src))
+    assert capsys.readouterr().err == ""
+    loading.init_params(Config(model="nsrr-fast", factor=2, init_from=src))
+    assert (f"note: init_from: {src} was trained with another design than this run's "
+            "model (exposure: 'normalized' -> 'absolute'); --model-override sets this "
+            "run's" in capsys.readouterr().err)

@@ -11,6 +11,9 @@ import jax.numpy as jnp
 
 from jtus import sampling
 
+EXPOSURE = ("absolute", "normalized")  # a network's colour inputs: as they are, or / mean
+EXPOSURE_FLOOR = 1e-4  # the least frame mean ``exposure="normalized"`` divides by
+
 DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16, "float16": jnp.float16,
           "float64": jnp.float64}
 
@@ -148,6 +151,19 @@ def compute_dtype(name):
     if name not in DTYPES:
         raise ValueError(f"dtype: expected one of {tuple(DTYPES)}, got {name!r}")
     return DTYPES[name]
+
+
+def exposure_normalizer(color, exposure):
+    """What a network's colour inputs are multiplied by under ``exposure`` (a config
+    field, one of ``EXPOSURE``): ``1.0`` for ``"absolute"`` (a Python float, so the graph
+    is unchanged), else ``[B,1,1,1]``, one over each frame's mean colour ``color
+    [B,h,w,3]`` (at least ``EXPOSURE_FLOOR``). A network that multiplies its colour
+    output by the mean (or mixes colours as they are) then computes, for a video scaled
+    by ``s``, its outputs scaled by ``s``."""
+    if exposure == "absolute":
+        return 1.0
+    mean = jnp.mean(color.astype(jnp.float32), axis=(1, 2, 3), keepdims=True)
+    return 1.0 / jnp.maximum(mean, EXPOSURE_FLOOR)
 
 
 def param_count(params):

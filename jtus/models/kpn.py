@@ -60,7 +60,7 @@ import jax.numpy as jnp
 from jtus import sampling
 from jtus.data.conventions import FAR, NEAR, linearize_depth
 from jtus.frame import Frame
-from jtus.models import layers
+from jtus.models import base, layers
 from jtus.models.base import Cost, Model, Spec, bind, reset_select
 
 HIDDEN = 5
@@ -73,8 +73,8 @@ COLOUR_INPUTS = (0, 1, 2, 6, 7, 8)  # the colour channels among the first IN_CHA
 SWITCHED = ("conv2", "conv3", "kernel")
 CURRENT = ("jau", "samples")
 HISTORY = ("raw", "clamped")
-EXPOSURE = ("absolute", "normalized")
-EXPOSURE_FLOOR = 1e-4  # the least frame mean ``exposure="normalized"`` divides by
+EXPOSURE = base.EXPOSURE
+EXPOSURE_FLOOR = base.EXPOSURE_FLOOR
 # current="samples": the kernel layer's starting bias (logits) for the history's centre
 # tap, a sample on the pixel itself, and every other tap (module docstring)
 SAMPLES_PRIOR = {"history_centre": math.log(9.0), "sample_centre": 0.0, "other": -5.0}
@@ -225,10 +225,7 @@ def exposure_scale(frame: Frame, config: Config):
     """What the network's colour inputs are multiplied by: ``1.0`` for
     ``exposure="absolute"`` (a Python float, so the graph is unchanged), else ``[B,1,1,1]``,
     one over each frame's mean LR colour (at least ``EXPOSURE_FLOOR``)."""
-    if config.exposure == "absolute":
-        return 1.0
-    mean = jnp.mean(frame.color.astype(jnp.float32), axis=(1, 2, 3), keepdims=True)
-    return 1.0 / jnp.maximum(mean, EXPOSURE_FLOOR)
+    return base.exposure_normalizer(frame.color, config.exposure)
 
 
 def clamp_history(rep, frame: Frame, config: Config):

@@ -16,6 +16,13 @@ Per frame, with up-sampling factor f and ``frames`` previous frames (4 in the pa
    concatenations) on the current and reweighted previous features gives RGB (or YCbCr
    when ``ycbcr``, converted back).
 
+With ``exposure="normalized"`` every colour the networks read is divided by its frame's
+mean LR colour (``base.exposure_normalizer``) and the output is multiplied by the
+current frame's: the weights then see every level at one exposure, and a video scaled
+by ``s`` gives outputs scaled by ``s``. The U-Net builds its output from scratch, so
+fed absolute colour it leaves an error floor of about the same size on every frame,
+which on the dark game levels is most of the error (docs/comparison.md).
+
 Channel widths are configurable. The paper gives them only in its Figure 4, which
 our copy of the paper lacks; the defaults (feature extraction 32-32-8, reweighting
 32-32-frames, U-Net 64-32 / 64-64 / 128-128 / 64-64 / 32-3) are our reading of it, and
@@ -34,8 +41,8 @@ import jax.numpy as jnp
 from jtus import sampling
 from jtus.data.conventions import FAR, NEAR, linearize_depth
 from jtus.frame import Frame
-from jtus.models import layers
-from jtus.models.base import Cost, Model, Spec, bind
+from jtus.models import base, layers
+from jtus.models.base import EXPOSURE, Cost, Model, Spec, bind
 
 FEATURES = 12  # 8 learned + RGB-D
 
@@ -53,6 +60,7 @@ class Config:
     scale: float = 10.0
     near: float = NEAR
     far: float = FAR
+    exposure: str = "absolute"  # or "normalized" (module docstring)
 
     def __post_init__(self):
         if self.extract[-1] != FEATURES - 4:
@@ -61,6 +69,8 @@ class Config:
             raise ValueError(f"unet: expected 9 widths (the 10th layer outputs 3), got {self.unet}")
         if self.frames < 1:
             raise ValueError(f"frames: expected >= 1, got {self.frames}")
+        if self.exposure not in EXPOSURE:
+            raise ValueError(f"exposure: expected one of {EXPOSURE}, got {self.exposure!r}")
 
     def unet_widths(self):
         return tuple(max(1, w // 2) for w in self.unet) if self.fast else self.unet
@@ -122,7 +132,8 @@ def _unet(ps, x):
 
 
 def _rgbd(frame, config):
-    color = frame.color.astype(jnp.float32)
+    color = frame.color.astype(jnp.float32) * base.exposure_normalizer(frame.color,
+                                                                        config.exposure)
     if config.ycbcr:
         color = sampling.rgb_to_ycbcr(color)
     depth = linearize_depth(frame.depth.astype(jnp.float32), config.near, config.far)
@@ -169,8 +180,44 @@ def step(params, state: State, frame: Frame, config: Config = Config()):
     out = _unet(params["unet"], jnp.concatenate([cur] + scaled, -1))
     if config.ycbcr:
         out = sampling.ycbcr_to_rgb(out)
+    if config.exposure == "normalized":
+        out = out / base.exposure_normalizer(frame.color, config.exposure)
     new_prev = jnp.concatenate([as_prev, warped[..., :FEATURES * (n - 1)]], -1)
     return out, State(new_prev)
+
+
+def normalize_exposure(params, config: Config, mean: float):
+    """Parameters for ``exposure="normalized"`` that compute, on frames whose mean LR
+    colour is ``mean``, what ``params`` (an NSRR fed absolute colour, ``config``)
+    computes: the weights of every first layer that reads colour (both extractors, the
+    reweighting network, the U-Net's input) are multiplied by ``mean`` on the colour
+    channels, and the U-Net's last layer divided by it."""
+    if config.exposure != "absolute":
+        raise ValueError("config: exposure is already normalized")
+    if config.ycbcr:
+        raise ValueError("config: ycbcr inputs are affine in the colour, so scaled weights "
+                         "cannot keep the outputs; expected ycbcr=False")
+    if not mean > 0:
+        raise ValueError(f"mean: expected a positive mean colour, got {mean}")
+    n = config.frames
+
+    def scaled(conv, blocks, width):
+        c = conv["kernel"].shape[2]
+        if c != blocks * width:
+            raise ValueError(f"params: a first layer reads {c} channels, expected "
+                             f"{blocks * width} for {config}")
+        colour = [b * width + i for b in range(blocks) for i in range(3)]
+        s = jnp.ones((c,), jnp.float32).at[jnp.asarray(colour)].set(mean)
+        return {**conv, "kernel": conv["kernel"] * s[:, None]}
+
+    last = params["unet"][-1]
+    return {"extract_current": [scaled(params["extract_current"][0], 1, 4)]
+            + list(params["extract_current"][1:]),
+            "extract_previous": [scaled(params["extract_previous"][0], 1, 4)]
+            + list(params["extract_previous"][1:]),
+            "reweight": [scaled(params["reweight"][0], 1 + n, 4)] + list(params["reweight"][1:]),
+            "unet": [scaled(params["unet"][0], 1 + n, FEATURES)] + list(params["unet"][1:-1])
+            + [{"kernel": last["kernel"] / mean, "bias": last["bias"] / mean}]}
 
 
 def make(config: Config = Config()) -> Model:
@@ -194,7 +241,9 @@ def cost(config: Config, H, W) -> Cost:
     warp = px * feats * 4 * 2
     compulsory = 4 * (lr * 6 + 2 * px * feats + px * 3)
     act = 4 * 2 * px * (sum(config.unet_widths()) + feats * 2)
-    return Cost(ext + rew + unet + warp + px * feats, ext + rew + unet, compulsory,
+    # normalized: the frame's mean, the scaled LR colour and the scaled output
+    norm = lr * 6 + px * 3 if config.exposure == "normalized" else 0
+    return Cost(ext + rew + unet + warp + px * feats + norm, ext + rew + unet, compulsory,
                 compulsory + act)
 
 

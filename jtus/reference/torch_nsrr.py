@@ -105,12 +105,15 @@ def warp(img, motion, f):
     return torch.where(inside, out, torch.zeros_like(out))
 
 
-def step(net, previous, color, depth, motion, jitter, reset, f):
+def step(net, previous, color, depth, motion, jitter, reset, f, normalize=False):
     """One frame, NCHW. ``previous``: a list of the up to ``frames`` previous frames'
     12-channel HR features, newest first, in the previous frame's view (empty at the
-    start). Returns ``(rgb, previous)``."""
+    start). ``normalize``: the colour read divided by the frame's mean (at least 1e-4),
+    the output multiplied by it. Returns ``(rgb, previous)``."""
     n = net.frames
     b = color.shape[0]
+    mean = color.mean((1, 2, 3), keepdim=True).clamp_min(1e-4) if normalize else 1.0
+    color = color / mean
     lin = (10.0 / (100.0 - depth * 99.9) - 0.1) / 99.9
     rgbd = torch.cat([color, lin], 1)
     cur = zero_upsample(torch.cat([rgbd, net.extract_current(rgbd)], 1), jitter, f)
@@ -122,7 +125,7 @@ def step(net, previous, color, depth, motion, jitter, reset, f):
     wts = net.reweight(torch.cat([cur[:, :4]] + [p[:, :4] for p in prev], 1))
     wts = 10.0 * (torch.tanh(wts) + 1) / 2
     scaled = [p * wts[:, i:i + 1] for i, p in enumerate(prev)]
-    out = net.unet(torch.cat([cur] + scaled, 1))
+    out = net.unet(torch.cat([cur] + scaled, 1)) * mean
     return out, [mine] + prev[:n - 1]
 
 
