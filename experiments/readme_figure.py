@@ -15,7 +15,8 @@ rendered here (``jtus.sim``, test split, so no training video), shown enlarged:
 Columns: the input (nearest-enlarged), TUS, DLCTUS (shipped weights), the best
 comparison system (``--best``: by default the one with the highest PSNR on the held-out
 validation videos, read from ``docs/results/comparison-val/x<F>/results.json``, which
-``python -m jtus.evaluate`` writes: ``best_on_validation``) and the reference.
+``python -m jtus.evaluate`` writes, at the weights the README table scores for it:
+``best_on_validation``) and the reference.
 
 The crops are not picked by eye. The frame is the last of the clip; the window is
 chosen on the reference alone by a stated rule: for thin geometry, texture and the
@@ -39,7 +40,7 @@ import os
 import jax
 import jax.numpy as jnp
 import numpy as np
-from common import ROOT, weights_path, write
+from common import ROOT, redesigned, second_stage, weights_path, write
 
 from jtus import loading, metrics, rollout, sampling, sim
 from jtus.frame import Frame
@@ -178,8 +179,10 @@ BASELINES = ("jau", "tus", "dlctus-shipped")
 
 
 def best_on_validation(factor, root=ROOT):
-    """``LABEL=experiments/weights/LABEL-x<F>.msgpack`` of the trained comparison system
-    with the highest PSNR in ``docs/results/comparison-val/x<F>/results.json``."""
+    """``LABEL=PATH`` of the trained comparison system with the highest PSNR in
+    ``docs/results/comparison-val/x<F>/results.json``, at the weights the README table
+    scores for it: its adopted redesign (``common.REDESIGNED``), else its adopted
+    second stage, else ``experiments/weights/LABEL-x<F>.msgpack``."""
     path = os.path.join(root, "docs", "results", "comparison-val", f"x{factor}", "results.json")
     with open(path) as fh:
         scores = json.load(fh)[str(factor)]
@@ -188,7 +191,8 @@ def best_on_validation(factor, root=ROOT):
         raise ValueError(f"{path}: no comparison system scored; run the command in its "
                          f"results.md with the trained systems")
     label = max(trained, key=trained.get)
-    return f"{label}={weights_path(label, factor)}"
+    adopted = redesigned(label, factor, root) or second_stage(label, factor, root)
+    return f"{label}={adopted[0] if adopted else weights_path(label, factor)}"
 
 
 def picture(grid, labels, cases, data, args):
