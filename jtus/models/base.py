@@ -166,6 +166,16 @@ def exposure_normalizer(color, exposure):
     return 1.0 / jnp.maximum(mean, EXPOSURE_FLOOR)
 
 
+def check_exposure_switch(config, mean):
+    """Refuse to switch ``config`` (a model config with ``exposure``) to normalized
+    colour at frame mean ``mean`` when it is normalized already or ``mean`` is not
+    positive (the models' ``normalize_exposure``)."""
+    if config.exposure != "absolute":
+        raise ValueError("config: exposure is already normalized")
+    if not mean > 0:
+        raise ValueError(f"mean: expected a positive mean colour, got {mean}")
+
+
 def param_count(params):
     return sum(int(x.size) for x in jax.tree_util.tree_leaves(params))
 

@@ -163,10 +163,7 @@ def normalize_exposure(params, config: Config, mean: float):
     the first convolution's weights for the colour inputs (the JAU colour, the history
     RGB and, for the samples mix, the placed samples) are multiplied by ``mean``, so
     that training starts from what the network already does at that exposure."""
-    if config.exposure != "absolute":
-        raise ValueError("config: exposure is already normalized")
-    if not mean > 0:
-        raise ValueError(f"mean: expected a positive mean colour, got {mean}")
+    base.check_exposure_switch(config, mean)
     conv1 = params["conv1"]
     n = conv1["kernel"].shape[2]
     if n != config.in_channels():
@@ -174,8 +171,7 @@ def normalize_exposure(params, config: Config, mean: float):
                          f"{config.in_channels()} for {config}")
     colour = list(COLOUR_INPUTS) + ([n - 3, n - 2, n - 1] if config.current == "samples"
                                     else [])
-    scale = jnp.ones((n,), jnp.float32).at[jnp.asarray(colour)].set(mean)
-    return {**params, "conv1": {**conv1, "kernel": conv1["kernel"] * scale[:, None]}}
+    return {**params, "conv1": layers.scale_inputs(conv1, colour, mean)}
 
 
 def phase_index(jitter, config: Config):

@@ -41,6 +41,14 @@ def conv_edge(x, kernel, bias=None):
     return _conv_edge_padded(x, kernel, bias)[0]
 
 
+def scale_inputs(conv, channels, factor):
+    """Convolution ``conv`` (``{"kernel": HWIO, "bias"}``) with the weights that read
+    input ``channels`` multiplied by ``factor`` (the others as they are)."""
+    n = conv["kernel"].shape[2]
+    scale = jnp.ones((n,), jnp.float32).at[jnp.asarray(list(channels))].set(factor)
+    return {**conv, "kernel": conv["kernel"] * scale[:, None]}
+
+
 def uniform(key, shape, bound):
     """``jax.random.uniform(key, shape, float32, -bound, bound)``, drawn as the first
     ``prod(shape)`` values of a draw whose length is a power of two. With JAX's

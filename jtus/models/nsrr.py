@@ -192,13 +192,10 @@ def normalize_exposure(params, config: Config, mean: float):
     computes: the weights of every first layer that reads colour (both extractors, the
     reweighting network, the U-Net's input) are multiplied by ``mean`` on the colour
     channels, and the U-Net's last layer divided by it."""
-    if config.exposure != "absolute":
-        raise ValueError("config: exposure is already normalized")
+    base.check_exposure_switch(config, mean)
     if config.ycbcr:
         raise ValueError("config: ycbcr inputs are affine in the colour, so scaled weights "
                          "cannot keep the outputs; expected ycbcr=False")
-    if not mean > 0:
-        raise ValueError(f"mean: expected a positive mean colour, got {mean}")
     n = config.frames
 
     def scaled(conv, blocks, width):
@@ -206,9 +203,8 @@ def normalize_exposure(params, config: Config, mean: float):
         if c != blocks * width:
             raise ValueError(f"params: a first layer reads {c} channels, expected "
                              f"{blocks * width} for {config}")
-        colour = [b * width + i for b in range(blocks) for i in range(3)]
-        s = jnp.ones((c,), jnp.float32).at[jnp.asarray(colour)].set(mean)
-        return {**conv, "kernel": conv["kernel"] * s[:, None]}
+        return layers.scale_inputs(conv, [b * width + i for b in range(blocks)
+                                          for i in range(3)], mean)
 
     last = params["unet"][-1]
     return {"extract_current": [scaled(params["extract_current"][0], 1, 4)]
