@@ -223,27 +223,30 @@ def second_stage(model, factor, root=ROOT):
 
 # comparison systems whose design was changed and retrained, each adopted on the
 # validation splits over its earlier rows (docs/comparison.md), at the factors where
-# it was: model -> (exported weights' base name under experiments/weights/, the
-# table's description of them, the factors adopted)
-REDESIGNED = {"mlp": ("mlp-jau", "JAU base, contrast-normalized patches; both families' "
-                                 "holds", FACTORS),
-              "kpn": ("kpn-clamp", "the current kernel mixes the samples themselves, the "
-                                   "history clamped to their box; diverse, then fine-tunes",
-                      FACTORS),
-              "nsrr-fast": ("nsrr-fast-exposure", "exposure-normalized colour; diverse, then "
-                                                  "fine-tunes on game and diverse half and half",
-                            FACTORS),
-              "nsrr": ("nsrr-exposure", "exposure-normalized colour; diverse, then fine-tunes on "
-                                        "game and diverse half and half", FACTORS)}
+# it was: model -> {factor: (exported weights' base name under experiments/weights/,
+# the table's description of them)}
+def _at_both(name, description):
+    return {f: (name, description) for f in FACTORS}
+
+
+_NSRR = "exposure-normalized colour; diverse, then fine-tunes on game and diverse half and half"
+REDESIGNED = {"mlp": _at_both("mlp-jau-logmse", "JAU base, contrast-normalized patches; both "
+                                                "families' holds, then log-MSE on game and "
+                                                "diverse half and half"),
+              "kpn": _at_both("kpn-clamp", "the current kernel mixes the samples themselves, "
+                                           "the history clamped to their box; diverse, then "
+                                           "fine-tunes"),
+              "nsrr-fast": _at_both("nsrr-fast-exposure", _NSRR),
+              "nsrr": _at_both("nsrr-exposure", _NSRR)}
 
 
 def redesigned(model, factor, root=ROOT):
     """``(path, rows, config, description)`` of a comparison system's adopted redesign at
     ``factor`` (``REDESIGNED``: ``experiments/weights/<name>-x<f>`` with its config and
     per-epoch log), or None where it has none."""
-    if model not in REDESIGNED or factor not in REDESIGNED[model][2]:
+    if factor not in REDESIGNED.get(model, {}):
         return None
-    name, description, _ = REDESIGNED[model]
+    name, description = REDESIGNED[model][factor]
     saved = _exported(root, name, factor)
     return None if saved is None else (*saved, description)
 

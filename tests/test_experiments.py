@@ -200,10 +200,11 @@ def test_second_stage_needs_weights_config_and_log(tmp_path):
 def test_redesign_needs_weights_config_and_log(tmp_path, monkeypatch):
     """experiments/common.redesigned: a system's adopted redesign is
     ``experiments/weights/<name>-x<f>`` (``REDESIGNED``) with its config and log beside
-    it, described for the table, at the factors where it was adopted; a missing file, a
-    factor not adopted, or a system without one, gives None."""
+    it, described for the table, at the factors where it was adopted (each factor may
+    name its own weights); a missing file, a factor not adopted, or a system without one,
+    gives None."""
     common = seqdata.load_script("common")
-    monkeypatch.setattr(common, "REDESIGNED", {"kpn": ("kpn-new", "a new design", (4,))})
+    monkeypatch.setattr(common, "REDESIGNED", {"kpn": {4: ("kpn-new", "a new design")}})
     base = tmp_path / "experiments" / "weights"
     base.mkdir(parents=True)
     for f in (4, 2):
@@ -218,6 +219,13 @@ def test_redesign_needs_weights_config_and_log(tmp_path, monkeypatch):
         "experiments/weights/kpn-new-x4.msgpack", "100", {"epochs": 1}, "a new design")
     assert common.redesigned("kpn", 2, str(tmp_path)) is None  # not adopted at 2x
     assert common.redesigned("nsrr", 4, str(tmp_path)) is None
+    # a factor's own weights: the 2x entry names others than the 4x one
+    common.REDESIGNED["kpn"][2] = ("kpn-tuned", "tuned further")
+    assert common.redesigned("kpn", 2, str(tmp_path)) is None  # kpn-tuned-x2 not exported
+    for suffix in (".msgpack", "-training.csv", ".json"):
+        (base / f"kpn-tuned-x2{suffix}").write_bytes((base / f"kpn-new-x2{suffix}").read_bytes())
+    assert common.redesigned("kpn", 2, str(tmp_path))[::3] == (
+        "experiments/weights/kpn-tuned-x2.msgpack", "tuned further")
 
 
 @pytest.mark.parametrize("factor", [4, 2])
@@ -227,9 +235,10 @@ def test_adopted_redesigns_load_as_the_model_they_were_trained_as(factor):
     included (the parameter tree equals a fresh ``init``'s, shape for shape), so the
     table scores what was trained."""
     common = seqdata.load_script("common")
-    for model, (name, _, factors) in common.REDESIGNED.items():
-        if factor not in factors:
+    for model, adopted in common.REDESIGNED.items():
+        if factor not in adopted:
             continue
+        name = adopted[factor][0]
         path, rows, _, _ = common.redesigned(model, factor)
         params, cfg = loading.load_params(os.path.join(common.ROOT, path))
         assert (cfg.model, cfg.factor) == (model, factor) and rows
@@ -284,7 +293,7 @@ def test_readme_figure_takes_the_best_trained_system_on_validation(tmp_path):
     (d / "results.json").write_text(json.dumps({"4": {k: {"psnr": v} for k, v in
                                                       scores.items()}}))
     assert rf.best_on_validation(4, str(tmp_path)) == "nsrr=experiments/weights/nsrr-x4.msgpack"
-    name = seqdata.load_script("common").REDESIGNED["nsrr"][0]
+    name = seqdata.load_script("common").REDESIGNED["nsrr"][4][0]
     w = tmp_path / "experiments" / "weights"
     w.mkdir(parents=True)
     for suffix in (".msgpack", ".json", "-training.csv"):
