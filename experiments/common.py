@@ -237,7 +237,8 @@ REDESIGNED = {"mlp": _at_both("mlp-jau-logmse", "JAU base, contrast-normalized p
                                            "the history clamped to their box; diverse, then "
                                            "fine-tunes"),
               "nsrr-fast": _at_both("nsrr-fast-exposure", _NSRR),
-              "nsrr": _at_both("nsrr-exposure", _NSRR)}
+              "nsrr": {4: ("nsrr-exposure", _NSRR),
+                       2: ("nsrr-exposure", _NSRR + ", the last round with log-MSE")}}
 
 
 def redesigned(model, factor, root=ROOT):
