@@ -17,6 +17,10 @@ replaced by the factor. Two families, both held out:
   held still for 64 frames by ``jtus.sim.video.static_hold`` (needs
   ``bash data/fetch_game_assets.sh``; skipped with a note without it).
 
+With ``--random-val N`` a third family, for choosing weights: ``random-val``, the first
+N validation scenes of the randomized family held the same way (``--levels`` then
+names validation levels and ``--mitsuba ''`` leaves the test clip out).
+
 Per model, family and factor, PSNR per frame over the hold (the game levels averaged
 frame by frame). The jitter is the thesis's Halton(2,3) cycle of 16 positions at both
 factors, so a converged upsampler's PSNR is periodic with period 16: each jitter
@@ -48,7 +52,7 @@ from common import DLCTUS_RUNS, THESIS_DIR, dlctus_run, out_dir, thesis_path, wr
 from tqdm import tqdm
 
 from jtus import evaluate, loading
-from jtus.sim import game
+from jtus.sim import game, get_scene, randomized
 from jtus.sim.video import VideoRenderer, static_hold
 
 matplotlib.use("Agg")
@@ -102,19 +106,32 @@ def mitsuba_curves(entries, factor, root):
     return {e.label: per_frame[e.label]["psnr"][MITSUBA_MOVING:] for e in entries}
 
 
-def game_holds(factors, size, levels):
-    """``{factor: [(Frame, targets), ...]}``: one hold per level, each level's target
-    rendered once for every factor."""
+def scene_holds(factors, size, scenes, desc):
+    """``{factor: [(Frame, targets), ...]}``: one hold per scene (``(name, scene)``
+    pairs), each scene's target rendered once for every factor."""
     holds = {f: [] for f in factors}
-    for name in tqdm(levels, desc="game holds"):
-        scene = game.scene_of(game.PREFIX + name)
+    for _, scene in tqdm(scenes, desc=desc):
         r = VideoRenderer(scene, (size, size), tuple(factors), 16)
         for f in factors:
             holds[f].append(static_hold(scene, size, f, "thesis", HOLD, renderer=r))
     return holds
 
 
-def game_curves(entries, factor, holds):
+def game_holds(factors, size, levels):
+    """One hold per game level (``scene_holds``)."""
+    return scene_holds(factors, size, [(lv, game.scene_of(game.PREFIX + lv))
+                                       for lv in levels], "game holds")
+
+
+def random_val_holds(factors, size, count):
+    """One hold per scene of the first ``count`` validation seeds of the randomized
+    family (the ``diverse`` data's validation scenes; never a test seed)."""
+    names = [randomized.name_of(s) for s in randomized.split_seeds("val", count)]
+    return scene_holds(factors, size, [(n, get_scene(n)) for n in names], "random holds")
+
+
+def hold_curves(entries, factor, holds):
+    """``(mean PSNR curve, worst scene's cycle change)`` per model over ``holds``."""
     curves = {e.label: [] for e in entries}
     for frames, targets in holds:
         frames, targets = jax.tree_util.tree_map(jnp.asarray, (frames, targets))
@@ -155,6 +172,9 @@ def main():
                         "when choosing on the validation levels)")
     p.add_argument("--size", type=int, default=128, help="game holds: frame size")
     p.add_argument("--levels", nargs="+", default=list(game.TEST_LEVELS))
+    p.add_argument("--random-val", type=int, default=0, metavar="N",
+                   help="add a family of holds of the first N validation scenes of the "
+                        "randomized family (for choosing weights; default none)")
     p.add_argument("--name", default="static-hold")
     args = p.parse_args()
     bad = [lv for lv in args.levels if lv not in game.TEST_LEVELS + game.VAL_LEVELS]
@@ -162,6 +182,8 @@ def main():
         p.error(f"--levels: {bad} are training levels; a hold is measured on held-out ones")
     have_game = os.path.isdir(game.assets_dir())
     holds = game_holds(args.factors, args.size, args.levels) if have_game else {}
+    rholds = random_val_holds(args.factors, args.size, args.random_val) \
+        if args.random_val else {}
     rows, data = [], {}
     for f in args.factors:
         specs = args.models or default_models(f, args.thesis)
@@ -169,7 +191,9 @@ def main():
         families = {"mitsuba": (mitsuba_curves(entries, f, args.mitsuba), None)} \
             if args.mitsuba else {}
         if have_game:
-            families["game"] = game_curves(entries, f, holds[f])
+            families["game"] = hold_curves(entries, f, holds[f])
+        if args.random_val:
+            families["random-val"] = hold_curves(entries, f, rholds[f])
         for fam, (curves, worst) in families.items():
             for lab, c in curves.items():
                 fall, _ = fall_and_gain(c)
@@ -200,6 +224,9 @@ def main():
             "before (negative: drifting down; converged: about 0); ripple: the last "
             "cycle's range; overshoot: the hold's best frame minus the last cycle's mean; "
             "gain: the last cycle's mean minus the first frame.")
+    if args.random_val:
+        note += (f" random-val: the mean curve over the first {args.random_val} validation "
+                 f"scenes of the randomized family at {args.size}x{args.size}.")
     if not have_game:
         note += " Game holds skipped: no assets (bash data/fetch_game_assets.sh)."
     write(args.name, table, data, note=note)

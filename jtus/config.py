@@ -59,6 +59,8 @@ class Config:
     mix_dataset: str = ""         # a second dataset whose training videos give a share of
     mix_fraction: float = 0.5     # each batch (rounded to whole crops); validation and the
                                   # final comparison stay on ``dataset``
+    extend_holds: bool = False    # a held video shorter than seq_len continues its hold
+                                  # (jtus.data.Dataset.sequence_frames)
 
     def __post_init__(self):
         positive = ("factor", "seq_len", "batch", "crop", "epochs", "steps_per_epoch",
@@ -173,6 +175,13 @@ PRESETS["long-holds-mix"] = dataclasses.replace(PRESETS["holds-mix"],
 # in all), so the loss on the last still frames reaches back through the whole hold; the
 # shipped weights' fourth stage at both factors, from the third (docs/weights.md)
 PRESETS["long-holds-bptt"] = dataclasses.replace(PRESETS["long-holds-mix"], k1=80, k2=80)
+# the holds-mix data with each hold continued to 256 still frames (the stored jitter
+# cycle repeated: the frames a longer hold would render), as TBPTT windows of 16: the
+# states deep in a hold, where the accumulation has settled, get a gradient
+# (17 windows, so 17 Adam steps, a sequence: 2 epochs of 50 sequences are 1,700 steps)
+PRESETS["deep-holds-mix"] = dataclasses.replace(PRESETS["holds-mix"], seq_len=272,
+                                                extend_holds=True, epochs=2,
+                                                steps_per_epoch=50)
 PRESETS["hdr-tiny"] = dataclasses.replace(PRESETS["tiny"], dataset="data/hdr-tiny.h5",
                                           data_preset="hdr-tiny",
                                           model_overrides=(("hdr", True),))

@@ -108,11 +108,13 @@ def train_crops(config: Config, ds, mix, batch, rng, accept=None):
     of ``config.mix_dataset``, or None)."""
     n_mix = mix_count(config, batch) if mix is not None else 0
     frames, targets, index = ds.crops("train", config.factor, batch - n_mix, config.seq_len,
-                                      config.crop, rng, return_index=True, accept=accept)
+                                      config.crop, rng, return_index=True, accept=accept,
+                                      extend_holds=config.extend_holds)
     index = [(config.dataset, *i) for i in index]
     if n_mix:
         f2, t2, i2 = mix.crops("train", config.factor, n_mix, config.seq_len, config.crop, rng,
-                               return_index=True, accept=accept)
+                               return_index=True, accept=accept,
+                               extend_holds=config.extend_holds)
         frames, targets = jax.tree_util.tree_map(lambda a, b: np.concatenate([a, b], 1),
                                                  (frames, targets), (f2, t2))
         index += [(config.mix_dataset, *i) for i in i2]
@@ -134,15 +136,8 @@ def check_data(config: Config):
         if config.crop > min(ds.size):
             raise ValueError(f"crop: {config.crop} exceeds the frame size "
                              f"{ds.size[0]}x{ds.size[1]} of {config.dataset}")
-        window = plan(config).window
-        for split, need in (("train", config.seq_len), ("val", window)):
-            names = ds.videos(split)
-            if not names:
-                raise ValueError(f"dataset: no videos in split {split!r} of {config.dataset}")
-            shortest = min(ds.file[f"{split}/{n}/target"].shape[0] for n in names)
-            if need > shortest:
-                raise ValueError(f"seq_len: {need} frames exceed the shortest {split} video "
-                                 f"of {config.dataset} ({shortest} frames)")
+        _check_lengths(config, ds, "train", config.seq_len, config.extend_holds)
+        _check_lengths(config, ds, "val", plan(config).window, config.extend_holds)
         if config.mix_dataset:
             _check_mix(config, ds)
 
@@ -163,10 +158,28 @@ def _check_mix(config: Config, ds):
         if config.crop > min(mix.size):
             raise ValueError(f"crop: {config.crop} exceeds the frame size "
                              f"{mix.size[0]}x{mix.size[1]} of {path}")
-        names = mix.videos("train")
-        if not names:
+        if not mix.videos("train"):
             raise ValueError(f"mix_dataset: no videos in split 'train' of {path}")
-        shortest = min(mix.file[f"train/{n}/target"].shape[0] for n in names)
-        if config.seq_len > shortest:
-            raise ValueError(f"seq_len: {config.seq_len} frames exceed the shortest train "
-                             f"video of {path} ({shortest} frames)")
+        _check_lengths(config, mix, "train", config.seq_len, config.extend_holds)
+
+
+def _check_lengths(config: Config, ds, split, need, extend_holds):
+    """Every video of ``split`` holds ``need`` frames; with ``extend_holds``, at least
+    one gives them (the others are not drawn)."""
+    names = ds.videos(split)
+    if not names:
+        raise ValueError(f"dataset: no videos in split {split!r} of {ds.path}")
+    if extend_holds:
+        if not any(ds.sequence_frames(split, n, config.factor, need, True) is not None
+                   for n in names):
+            raise ValueError(f"seq_len: no {split} video of {ds.path} gives {need} frames, "
+                             "not even with its hold continued (extend_holds needs videos "
+                             "generated with a hold of at least one jitter period)")
+        return
+    shortest = min(ds.file[f"{split}/{n}/target"].shape[0] for n in names)
+    if need > shortest:
+        held = any(ds.hold_period(split, n, config.factor) is not None for n in names)
+        raise ValueError(f"seq_len: {need} frames exceed the shortest {split} video "
+                         f"of {ds.path} ({shortest} frames)" + (
+                             "; extend_holds (--extend-holds) continues its holds"
+                             if held and split == "train" else ""))

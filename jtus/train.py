@@ -251,7 +251,7 @@ def compile_step(config, model, step_fn, ts, plan):
     """
     with Dataset(config.dataset) as ds:
         one = ds.crops("train", config.factor, 1, config.seq_len, config.crop,
-                       np.random.default_rng(0))
+                       np.random.default_rng(0), extend_holds=config.extend_holds)
     w = plan.windows[0]
     frames, targets = jax.tree_util.tree_map(
         lambda x: jax.ShapeDtypeStruct((w.stop - w.start, config.batch) + x.shape[2:],
@@ -365,7 +365,8 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
         mix = stack.enter_context(Dataset(config.mix_dataset)) if config.mix_dataset else None
         val_rng = np.random.default_rng([config.seed, 10**6])
         val_crops = [jax.tree_util.tree_map(jnp.asarray, ds.crops(
-            "val", config.factor, config.batch, run.plan.window, config.crop, val_rng))
+            "val", config.factor, config.batch, run.plan.window, config.crop, val_rng,
+            extend_holds=config.extend_holds))
             for _ in range(config.val_batches)]
         for done, epoch in enumerate(range(start_epoch + 1, end + 1), 1):
             t0 = time.perf_counter()
@@ -396,6 +397,8 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
 _FIELD_HELP = {
     "loss": f"one of {', '.join(losses.NAMES)} (jtus.losses); default: the preset's",
     "model": f"one of {', '.join(models.TRAINABLE)}; default: the preset's",
+    "extend_holds": "continue the holds of held videos (data presets *-holds) past their "
+                    "stored length to --seq-len frames",
 }
 
 
@@ -418,7 +421,8 @@ def _parser():
             continue
         flag = "--" + f.name.replace("_", "-")
         if f.type in ("bool", bool):
-            p.add_argument(flag, action=argparse.BooleanOptionalAction, default=None)
+            p.add_argument(flag, action=argparse.BooleanOptionalAction, default=None,
+                           help=_FIELD_HELP.get(f.name))
         else:
             typ = {"int": int, "float": float}.get(str(f.type), str)
             p.add_argument(flag, type=typ, default=None, help=_FIELD_HELP.get(f.name))

@@ -93,6 +93,35 @@ def test_generated_holds_move_then_stand_still(tmp_path):
     assert not np.array_equal(x4["color"][5], x4["color"][6])
 
 
+def test_continued_hold_equals_a_longer_rendered_hold(tmp_path):
+    """``extend_holds``: a held video read past its stored length gives exactly the
+    frames of the same hold rendered that long (jitter period 8 here, at both factors;
+    the phase differs per video); a video whose hold spans less than one period, or
+    one without a hold, is not drawn, and without ``extend_holds`` a sequence longer
+    than a video is refused by name."""
+    def held(name, length, hold_from=5):
+        p = dataclasses.replace(generate.preset("tiny"), splits={
+            "train": (("camera_orbit",), 1, length), "val": ((), 1, 1), "test": ((), 1, 1)},
+            jitters=("halton8",), hold_from=hold_from)
+        generate.generate(p, tmp_path / name, progress=False)
+        return dataset.Dataset(tmp_path / name)
+
+    with held("short.h5", 5 + 8) as short, held("long.h5", 5 + 30) as long, \
+            held("shorter.h5", 5 + 7) as shorter:
+        for f in (4, 2):
+            assert short.hold_period("train", "camera_orbit_00", f) == (5, 8)
+            a, ta = short.crops("train", f, 1, 35, 32, np.random.default_rng(0),
+                                extend_holds=True)
+            b, tb = long.crops("train", f, 1, 35, 32, np.random.default_rng(0))
+            for x, y in zip(a, b):
+                np.testing.assert_array_equal(x, y)
+            np.testing.assert_array_equal(ta, tb)
+        with pytest.raises(ValueError, match="not even with its hold continued"):
+            shorter.crops("train", 4, 1, 35, 32, np.random.default_rng(0), extend_holds=True)
+        with pytest.raises(ValueError, match="exceeds the length 13 of video 'camera_orbit_00'"):
+            short.crops("train", 4, 1, 35, 32, np.random.default_rng(0))
+
+
 def test_interrupted_generate_leaves_no_file(tmp_path, monkeypatch):
     from jtus.sim import video
 

@@ -432,6 +432,35 @@ def test_static_hold_fall_and_cycle_change():
         sh.fall_and_gain([1.0] * 11)
 
 
+def test_hold_dynamics_traces_the_step_that_evaluation_runs():
+    """experiments/hold_dynamics.py: its frame-by-frame trace of a DLCTUS hold gives the
+    PSNR jtus.evaluate gives for the same model and hold (float32 rounding, 1e-3 dB), a
+    blend share and accumulation inside [0, 1]; the sharpness measure is the mean squared
+    step between neighbours (1 for one-pixel stripes of 0 and 1, 0 for a flat image);
+    whole jitter cycles are averaged."""
+    import jax
+
+    from jtus import evaluate
+    from jtus.models import dlctus
+    from jtus.sim import get_scene
+    from jtus.sim.video import static_hold
+
+    hd = seqdata.load_script("hold_dynamics")
+    config = dlctus.Config(factor=4)
+    model = dlctus.make(config)
+    params = model.init(jax.random.PRNGKey(3))
+    frames, targets = static_hold(get_scene("textures"), 32, 4, "thesis", 20, spp=4)
+    t = hd.trace(params, config, frames, targets)
+    ref = evaluate.video_metrics(model, params, *jax.tree_util.tree_map(
+        jax.numpy.asarray, (frames, targets)), 4)["psnr"]
+    np.testing.assert_allclose(t["psnr"], ref, atol=1e-3)
+    assert (0 <= t["blend"]).all() and (t["blend"] <= 1).all()
+    assert (0 <= t["acc"]).all() and (t["acc"] <= 1).all()
+    stripes = np.broadcast_to((np.arange(8) % 2)[None, None, :, None], (1, 8, 8, 3))
+    assert hd._energy(stripes) == 1.0 and hd._energy(np.ones((1, 8, 8, 3))) == 0.0
+    np.testing.assert_allclose(hd.per_cycle(np.arange(40.0)), [7.5, 23.5])
+
+
 def test_candidate_scores_table_marks_validation_and_test_columns():
     """experiments/candidate_scores.py: validation columns (which choose) are marked
     apart from the test families (which only report), one row per model."""

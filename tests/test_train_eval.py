@@ -302,3 +302,41 @@ def test_mixed_datasets_share_each_batch(tiny_data, tmp_path):
     assert not (tmp_path / "other").exists()
     with pytest.raises(ValueError, match="mix_fraction"):
         dataclasses.replace(config, mix_fraction=1.0)
+
+
+def test_training_continues_holds_past_their_stored_length(tmp_path):
+    """``extend_holds``: training on sequences longer than a held dataset's videos runs
+    (each hold continued by its jitter period), as TBPTT windows and as one window as
+    long as the sequence (then validation's windows are continued holds too), and
+    without it the same config is refused before anything is written, naming the
+    option."""
+    from jtus import recipe
+    from jtus.sim import generate
+
+    p = dataclasses.replace(generate.preset("tiny"), splits={
+        "train": (("camera_orbit",), 1, 13), "val": (("camera_orbit",), 1, 13),
+        "test": ((), 1, 1)}, jitters=("halton8",), hold_from=5)
+    data = tmp_path / "holds.h5"
+    generate.generate(p, data, progress=False)
+    config = _config(str(data), epochs=1, steps_per_epoch=2, seq_len=24, mode="tbptt",
+                     k1=8, k2=8, val_batches=1, val_videos=1, extend_holds=True)
+    for k in (8, 24):
+        c = dataclasses.replace(config, k1=k, k2=k)
+        _, hist = train.train_and_evaluate(c, tmp_path / f"run{k}", progress=False)
+        assert np.isfinite(hist[0]["train_loss"]) and np.isfinite(hist[0]["val_psnr"])
+    with pytest.raises(ValueError, match="shortest train video.*13 frames.*extend-holds"):
+        recipe.check_data(dataclasses.replace(config, extend_holds=False))
+    with pytest.raises(ValueError, match="not even with its hold continued"):
+        recipe.check_data(dataclasses.replace(config, seq_len=24, extend_holds=True,
+                                              dataset=str(_short_hold(tmp_path))))
+
+
+def _short_hold(tmp_path):
+    """A held dataset whose hold (4 frames) is shorter than its jitter period (8)."""
+    from jtus.sim import generate
+
+    p = dataclasses.replace(generate.preset("tiny"), splits={
+        "train": (("camera_orbit",), 1, 9), "val": (("camera_orbit",), 1, 9),
+        "test": ((), 1, 1)}, jitters=("halton8",), hold_from=5)
+    generate.generate(p, tmp_path / "short.h5", progress=False)
+    return tmp_path / "short.h5"

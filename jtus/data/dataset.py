@@ -31,6 +31,7 @@ import h5py
 import numpy as np
 
 from jtus.frame import Frame
+from jtus.sampling import jitter_sequence
 
 FORMAT = "jtus-dataset"
 # colours are stored as float16: larger values would be stored as inf
@@ -134,6 +135,7 @@ class Dataset:
         # as exposure 1, so that every batch has one layout
         self.hdr = any("exposure" in self.file[s][n] for s in SPLITS if s in self.file
                        for n in self.file[s])
+        self._sources_cache = {}  # crops' draw: (split, factor, seq_len, extend) -> videos
 
     def close(self):
         self.file.close()
@@ -194,13 +196,83 @@ class Dataset:
             return g["exposure"][ts].astype(np.float32)
         return np.ones(g["reset"][ts].shape, np.float32)
 
+    def hold_period(self, split, name, factor):
+        """``(hold_from, period)`` of a held video (generated with ``hold_from``: it
+        stands still from that frame on while only the jitter moves), or None for any
+        other video. ``period`` is its jitter sequence's length at ``factor``: a held
+        frame's input and target equal those ``period`` frames earlier. ``ValueError``
+        when the stored jitter contradicts that period."""
+        g = self.group(split, name)
+        if "hold_from" not in g.attrs or "jitter_sequence" not in g.attrs:
+            return None
+        hold_from = int(g.attrs["hold_from"])
+        period = len(jitter_sequence(str(g.attrs["jitter_sequence"]), factor))
+        j = g[f"x{factor}/jitter"][hold_from:]
+        if len(j) > period and not np.array_equal(j[period:], j[:-period]):
+            raise ValueError(f"{self.path}: {split}/{name}: the held frames' jitter does not "
+                             f"repeat with its sequence's period {period}")
+        return hold_from, period
+
+    def sequence_frames(self, split, name, factor, seq_len, extend_holds=False):
+        """The stored frame numbers behind a ``seq_len``-frame sequence from frame 0 of
+        a video, or None when the video cannot give one. Within its length, ``0 ..
+        seq_len-1``. Past it, with ``extend_holds`` and a held video whose still part
+        spans at least one jitter period, the hold goes on: frame ``t`` reads the last
+        stored frame ``t - k * period``, which has the same input and target (a longer
+        hold rendered outright gives the same frames, ``tests/test_data.py``)."""
+        T = self.group(split, name)["target"].shape[0]
+        if seq_len <= T:
+            return np.arange(seq_len)
+        held = self.hold_period(split, name, factor) if extend_holds else None
+        if held is None or T - held[0] < held[1]:
+            return None
+        t = np.arange(seq_len)
+        past = t >= T
+        t[past] -= held[1] * np.ceil((t[past] - T + 1) / held[1]).astype(t.dtype)
+        return t
+
+    def _sources(self, split, factor, seq_len, extend_holds):
+        """``[(name, frame numbers of its first sequence, count of start frames)]``
+        of the videos of ``split`` that give ``seq_len``-frame sequences."""
+        key = (split, factor, seq_len, extend_holds)
+        if key not in self._sources_cache:
+            out = []
+            for name in self.videos(split):
+                t = self.sequence_frames(split, name, factor, seq_len, extend_holds)
+                T = self.file[f"{split}/{name}/target"].shape[0]
+                if t is None and not extend_holds:
+                    raise ValueError(f"seq_len: {seq_len} exceeds the length {T} of video "
+                                     f"{name!r} (extend_holds continues held videos' holds)")
+                if t is not None:
+                    out.append((name, t, max(T - seq_len + 1, 1)))
+            self._sources_cache[key] = out
+        return self._sources_cache[key]
+
+    def _read_crop(self, g, factor, ts, sel, y, x, crop):
+        """One crop's columns: frames ``ts`` (a slice) of video group ``g`` taken in the
+        order ``sel``, the LR block at ``(y, x)`` and the HR crop over it."""
+        c, lr = crop // factor, g[f"x{factor}"]
+        reset = g["reset"][ts][sel]
+        reset[0] = True
+        e = self._exposure(g, ts)
+        return {"color": lr["color"][ts, y:y + c, x:x + c][sel].astype(np.float32),
+                "depth": lr["depth"][ts, y:y + c, x:x + c][sel],
+                "motion": lr["motion"][ts, y:y + c, x:x + c][sel],
+                "jitter": lr["jitter"][ts][sel], "reset": reset,
+                "target": g["target"][ts, y * factor:y * factor + crop,
+                                      x * factor:x * factor + crop][sel].astype(np.float32),
+                "exposure": None if e is None else e[sel]}
+
     def crops(self, split, factor, batch, seq_len, crop, rng, return_index=False, accept=None,
-              max_tries=20):
+              max_tries=20, extend_holds=False):
         """Random aligned crops: ``(Frame [T,B,...], targets [T,B,crop,crop,3])``.
 
         The HR crop starts at a multiple of ``factor`` so that the LR crop lies exactly
         under it; ``crop`` must be a multiple of 4 and of ``factor``. The first frame
         of each crop has ``reset`` set (the model starts its history there).
+        ``extend_holds``: a held video shorter than ``seq_len`` gives a sequence from its
+        first frame with its hold continued (``sequence_frames``); videos that cannot
+        give ``seq_len`` frames are not drawn.
         """
         self._check_factor(factor)
         if crop % 4 or crop % factor:
@@ -208,40 +280,33 @@ class Dataset:
         H, W = self.size
         if crop > min(H, W):
             raise ValueError(f"crop: {crop} exceeds the frame size {H}x{W}")
-        names = self.videos(split)
-        if not names:
+        if not self.videos(split):
             raise ValueError(f"dataset: no videos in split {split!r}")
-        c = crop // factor
+        sources = self._sources(split, factor, seq_len, extend_holds)
+        if not sources:
+            raise ValueError(f"seq_len: no video of split {split!r} gives {seq_len} frames, "
+                             "not even with its hold continued (a held video's still part "
+                             "must span one jitter period)")
         cols = {k: [] for k in ("color", "depth", "motion", "jitter", "reset", "target",
                                 "exposure")}
         index = []
         for _ in range(batch):
             for _ in range(max_tries):
-                name = names[rng.integers(len(names))]
+                name, frames, starts = sources[rng.integers(len(sources))]
                 g = self.file[f"{split}/{name}"]
-                T = g["target"].shape[0]
-                if seq_len > T:
-                    raise ValueError(f"seq_len: {seq_len} exceeds the video length {T}")
-                t0 = int(rng.integers(0, T - seq_len + 1))
+                t0 = int(rng.integers(0, starts))
                 y = int(rng.integers(0, (H - crop) // factor + 1))
                 xx = int(rng.integers(0, (W - crop) // factor + 1))
+                ts = frames + t0
+                lo, sel = int(ts[0]), ts - ts[0]
+                ts_read = slice(lo, int(ts.max()) + 1)
                 if accept is None or rng.uniform() < accept(
-                        g["target"][t0:t0 + seq_len, y * factor:y * factor + crop,
-                                    xx * factor:xx * factor + crop]):
+                        g["target"][ts_read, y * factor:y * factor + crop,
+                                    xx * factor:xx * factor + crop][sel]):
                     break
-            x = g[f"x{factor}"]
             index.append((name, t0, y, xx))
-            ts = slice(t0, t0 + seq_len)
-            cols["color"].append(x["color"][ts, y:y + c, xx:xx + c].astype(np.float32))
-            cols["depth"].append(x["depth"][ts, y:y + c, xx:xx + c])
-            cols["motion"].append(x["motion"][ts, y:y + c, xx:xx + c])
-            cols["jitter"].append(x["jitter"][ts])
-            r = g["reset"][ts].copy()
-            r[0] = True
-            cols["reset"].append(r)
-            cols["target"].append(g["target"][ts, y * factor:y * factor + crop,
-                                              xx * factor:xx * factor + crop].astype(np.float32))
-            cols["exposure"].append(self._exposure(g, ts))
+            for k, v in self._read_crop(g, factor, ts_read, sel, y, xx, crop).items():
+                cols[k].append(v)
         exposure = cols.pop("exposure")
         exposure = np.stack(exposure, 1) if self.hdr else None
         st = {k: np.stack(v, 1) for k, v in cols.items()}
