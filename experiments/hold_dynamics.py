@@ -22,6 +22,7 @@ Writes ``docs/results/<name>/`` (``result.md``, ``result.json``, ``dynamics_x<f>
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 
 import jax
@@ -48,24 +49,28 @@ def _energy(img):
     return float(np.mean(np.diff(img, axis=-3) ** 2) + np.mean(np.diff(img, axis=-2) ** 2))
 
 
+@functools.partial(jax.jit, static_argnames="config")
+def _step(params, state, frame, config):
+    """One frame: ``(state, (output, mean o1, mean accumulation))``. The blend ``o1``
+    comes from the network run once more beside ``advance`` (its output construction is
+    the model's own, not public), so a traced frame costs two network evaluations."""
+    pre = dlctus.prepare_frame(frame, config)
+    net_in, _, _ = dlctus.reproject(state, pre, config)
+    o = sampling.pixel_shuffle(jnp.clip(dlctus.network(params, net_in, config), 0, 1),
+                               dlctus.DOWN)
+    out, state = dlctus.advance(params, state, pre, config)
+    return state, (out, jnp.mean(o[..., 0]), jnp.mean(state.history[..., 3]))
+
+
 def trace(params, config, frames, targets):
     """``{quantity: [T]}`` of one DLCTUS model over one hold (``frames``: a ``Frame``
     ``[T,1,...]``; ``targets`` ``[T,1,H,W,3]``)."""
-    @jax.jit
-    def one(state, frame):
-        pre = dlctus.prepare_frame(frame, config)
-        net_in, _, _ = dlctus.reproject(state, pre, config)
-        o = sampling.pixel_shuffle(jnp.clip(dlctus.network(params, net_in, config), 0, 1),
-                                   dlctus.DOWN)
-        out, state = dlctus.advance(params, state, pre, config)
-        return state, (out, jnp.mean(o[..., 0]), jnp.mean(state.history[..., 3]))
-
     first = jax.tree_util.tree_map(lambda a: jnp.asarray(a[0]), frames)
     state = dlctus.init_state(first, config)
     rows = {q: [] for q in QUANTITIES}
     for t in range(targets.shape[0]):
-        state, (out, blend, acc) = one(state, jax.tree_util.tree_map(
-            lambda a: jnp.asarray(a[t]), frames))
+        state, (out, blend, acc) = _step(params, state, jax.tree_util.tree_map(
+            lambda a: jnp.asarray(a[t]), frames), config=config)
         out, tgt = np.asarray(out, np.float64), np.asarray(targets[t], np.float64)
         rows["psnr"].append(float(-10 * np.log10(np.mean((out - tgt) ** 2))))
         rows["blend"].append(float(blend))

@@ -107,10 +107,10 @@ def mitsuba_curves(entries, factor, root):
 
 
 def scene_holds(factors, size, scenes, desc):
-    """``{factor: [(Frame, targets), ...]}``: one hold per scene (``(name, scene)``
-    pairs), each scene's target rendered once for every factor."""
+    """``{factor: [(Frame, targets), ...]}``: one hold per scene, each scene's target
+    rendered once for every factor."""
     holds = {f: [] for f in factors}
-    for _, scene in tqdm(scenes, desc=desc):
+    for scene in tqdm(scenes, desc=desc):
         r = VideoRenderer(scene, (size, size), tuple(factors), 16)
         for f in factors:
             holds[f].append(static_hold(scene, size, f, "thesis", HOLD, renderer=r))
@@ -119,15 +119,16 @@ def scene_holds(factors, size, scenes, desc):
 
 def game_holds(factors, size, levels):
     """One hold per game level (``scene_holds``)."""
-    return scene_holds(factors, size, [(lv, game.scene_of(game.PREFIX + lv))
-                                       for lv in levels], "game holds")
+    return scene_holds(factors, size, [game.scene_of(game.PREFIX + lv) for lv in levels],
+                       "game holds")
 
 
 def random_val_holds(factors, size, count):
     """One hold per scene of the first ``count`` validation seeds of the randomized
     family (the ``diverse`` data's validation scenes; never a test seed)."""
-    names = [randomized.name_of(s) for s in randomized.split_seeds("val", count)]
-    return scene_holds(factors, size, [(n, get_scene(n)) for n in names], "random holds")
+    return scene_holds(factors, size, [get_scene(randomized.name_of(s))
+                                       for s in randomized.split_seeds("val", count)],
+                       "random holds")
 
 
 def hold_curves(entries, factor, holds):
