@@ -61,6 +61,8 @@ class Config:
                                   # final comparison stay on ``dataset``
     extend_holds: bool = False    # a held video shorter than seq_len continues its hold
                                   # (jtus.data.Dataset.sequence_frames)
+    alternate: str = ""           # a preset: every second training sequence is drawn from
+                                  # its data and cut into its windows (recipe.alternate_config)
 
     def __post_init__(self):
         positive = ("factor", "seq_len", "batch", "crop", "epochs", "steps_per_epoch",
@@ -106,6 +108,8 @@ class Config:
                 or not 0 < self.mix_fraction < 1):
             raise ValueError(f"mix_fraction: expected a fraction in (0, 1), got "
                              f"{self.mix_fraction!r}")
+        if not isinstance(self.alternate, str):
+            raise ValueError(f"alternate: expected a preset name or '', got {self.alternate!r}")
         if self.loss not in losses.NAMES:
             raise ValueError(f"loss: expected one of {losses.NAMES}, got {self.loss!r}")
 

@@ -7,6 +7,7 @@ sweep trains exactly what ``python -m jtus.train`` would.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from typing import NamedTuple, Optional
 
@@ -16,7 +17,7 @@ import numpy as np
 import optax
 
 from jtus import losses, models, rollout
-from jtus.config import Config
+from jtus.config import PRESETS, Config
 from jtus.data.dataset import Dataset
 
 
@@ -61,12 +62,49 @@ def plan(config: Config) -> Plan:
                 rollout.tbptt_windows(config.seq_len, config.k1, config.k2))
 
 
+# what ``Config.alternate`` takes from its preset: where the sequences come from and
+# how they are cut into optimizer steps; the model, loss, optimizer, crop and batch stay
+ALTERNATE_FIELDS = ("dataset", "data_preset", "mix_dataset", "mix_fraction", "seq_len",
+                    "mode", "k1", "k2", "loss_frames", "extend_holds")
+
+
+def alternate_config(config: Config) -> Optional[Config]:
+    """The config of a run's every second training sequence (the 2nd, 4th, ... of each
+    epoch): ``config`` with ``ALTERNATE_FIELDS`` from the preset ``config.alternate``;
+    None when the run does not alternate. Moving content between whole long holds, for
+    example, needs two sequence lengths, which one batch cannot hold."""
+    if not config.alternate:
+        return None
+    if config.alternate not in PRESETS:
+        raise ValueError(f"alternate: unknown preset {config.alternate!r}; expected one of "
+                         f"{', '.join(PRESETS)}")
+    base = PRESETS[config.alternate]
+    if base.alternate:
+        raise ValueError(f"alternate: preset {config.alternate!r} alternates itself "
+                         f"(with {base.alternate!r}); name a preset that does not")
+    return dataclasses.replace(config, alternate="",
+                               **{f: getattr(base, f) for f in ALTERNATE_FIELDS})
+
+
+def sources(config: Config) -> list:
+    """The configs whose sequences a run's epoch takes in turn: ``[config]``, or
+    ``[config, alternate_config(config)]``."""
+    alt = alternate_config(config)
+    return [config] if alt is None else [config, alt]
+
+
+def steps_per_epoch(config: Config) -> int:
+    """Optimizer steps in one epoch: each sequence gives one per window of its plan."""
+    return sum(len(plan(c).windows) * len(range(i, config.steps_per_epoch, len(cs)))
+               for cs in [sources(config)] for i, c in enumerate(cs))
+
+
 def optimizer_for(config: Config):
     """Adam at ``lr``, or warm-up then cosine decay to ``lr * lr_end`` over the run's
     optimizer steps; after global-norm clipping when ``clip_norm`` > 0."""
     lr = config.lr
     if config.schedule == "cosine":
-        total = config.epochs * config.steps_per_epoch * len(plan(config).windows)
+        total = config.epochs * steps_per_epoch(config)
         lr = optax.warmup_cosine_decay_schedule(
             0.0, config.lr, min(config.warmup_steps, max(total - 1, 0)), max(total, 1),
             config.lr * config.lr_end)
@@ -124,7 +162,12 @@ def train_crops(config: Config, ds, mix, batch, rng, accept=None):
 def check_data(config: Config):
     """Refuse, before anything is written, a dataset this config cannot train on: the
     factor, the crop against the frame size, the window against the videos' lengths,
-    empty train or validation splits."""
+    empty train or validation splits; the same for an alternate preset's data."""
+    for c in sources(config):
+        _check_source(c)
+
+
+def _check_source(config: Config):
     with Dataset(config.dataset) as ds:
         if config.factor not in ds.factors:
             raise ValueError(f"factor: {config.dataset} holds factors {ds.factors}, got "

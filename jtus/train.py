@@ -8,7 +8,9 @@
 One jit region per optimizer step with the train state donated (``make_train_step``),
 over ``jtus.rollout`` windows: BPTT (the loss on the last ``loss_frames`` frames of
 ``seq_len``) or TBPTT (k1, k2). Sequences start with ``frame.reset`` set, so the model
-initializes its history inside the step and every window shares one trace.
+initializes its history inside the step and every window shares one trace. With
+``--alternate PRESET`` every second sequence follows that preset's data and windows
+(``recipe.alternate_config``), each kind of sequence with its own compiled step.
 
 After each epoch: the loss on fixed validation crops, PSNR/SSIM over whole validation
 videos (thesis sec. 4.3.5), an atomic checkpoint, ``metrics.json``/``metrics.csv`` and
@@ -178,12 +180,20 @@ def _prepare_workdir(config, workdir, resume, overwrite):
                          f"{cfg_path} (only --epochs may change); use a new --workdir")
 
 
+class _Source(NamedTuple):
+    """Where a run's training sequences come from and how they become optimizer steps:
+    the run's config, or its alternate (``recipe.sources``)."""
+    config: Config
+    plan: recipe.Plan
+    step_fn: Any        # the jitted optimizer step (make_train_step) for the plan's windows
+
+
 class _Run(NamedTuple):
     """What every epoch of a run shares."""
     config: Config
     model: Any
-    plan: recipe.Plan
-    step_fn: Any        # the jitted optimizer step (make_train_step)
+    plan: recipe.Plan   # the run's own plan (validation crops are its window long)
+    sources: list       # _Source per kind of training sequence, taken in turn
     eval_loss: Any      # jitted validation loss of one crop
     mesh: Any           # the data mesh, or None on one device
     accept: Any         # the model's training-crop acceptance hook
@@ -198,8 +208,10 @@ def _start(config, workdir, resume, overwrite, progress, force=False):
     go on past it)."""
     procs, main = jax.process_count(), sharding.is_main()
     _prepare_workdir(config, workdir, resume, overwrite)
+    configs = recipe.sources(config)  # an unknown alternate preset is refused here
     if main:
-        generate.ensure_dataset(config.dataset, config.data_preset, progress)
+        for c in configs:
+            generate.ensure_dataset(c.dataset, c.data_preset, progress)
     if procs > 1:
         multihost_utils.sync_global_devices("jtus: dataset ready")
         if config.batch % procs:
@@ -209,15 +221,19 @@ def _start(config, workdir, resume, overwrite, progress, force=False):
     model, loss_fn, opt = recipe.model_for(config), recipe.loss_for(config), \
         recipe.optimizer_for(config)
     ts = create_train_state(loading.init_params(config), opt)
-    plan = recipe.plan(config)
-    step_fn = make_train_step(model, loss_fn, opt, loss_frames=plan.loss_frames,
-                              keep_at=plan.keep_at, remat=config.remat, hoist=config.hoist)
     mesh = sharding.data_mesh(config.batch)
-    if mesh is None:  # one device: the step compiled once, its memory checked up front
-        step_fn, memory = compile_step(config, model, step_fn, ts, plan)
-        check_budget(memory, 4 * _nbytes(ts.params) + 2 ** 20, workdir, force,
-                     what="this training step",
-                     smaller="a smaller --batch, --crop or --k2/--seq-len, or --remat")
+    srcs = []
+    for c in configs:
+        plan = recipe.plan(c)
+        step_fn = make_train_step(model, loss_fn, opt, loss_frames=plan.loss_frames,
+                                  keep_at=plan.keep_at, remat=config.remat,
+                                  hoist=config.hoist)
+        if mesh is None:  # one device: each step compiled once, its memory checked up front
+            step_fn, memory = compile_step(c, model, step_fn, ts, plan)
+            check_budget(memory, 4 * _nbytes(ts.params) + 2 ** 20, workdir, force,
+                         what="this training step",
+                         smaller="a smaller --batch, --crop or --k2/--seq-len, or --remat")
+        srcs.append(_Source(c, plan, step_fn))
     replacing = overwrite and not resume and os.path.exists(
         os.path.join(workdir, checkpoint.CHECKPOINT))
     if main:
@@ -231,9 +247,9 @@ def _start(config, workdir, resume, overwrite, progress, force=False):
     if mesh is not None:  # batch split over the devices, parameters replicated
         ts = sharding.replicate(ts, mesh)
     eval_loss = jax.jit(lambda p, c, f, t: rollout.window_loss(
-        model.step, loss_fn, p, c, f, t, loss_frames=plan.loss_frames)[0])
-    run = _Run(config, model, plan, step_fn, eval_loss, mesh, recipe.accept_for(config),
-               replacing)
+        model.step, loss_fn, p, c, f, t, loss_frames=srcs[0].plan.loss_frames)[0])
+    run = _Run(config, model, srcs[0].plan, srcs, eval_loss, mesh,
+               recipe.accept_for(config), replacing)
     return run, ts, start_epoch, history
 
 
@@ -276,10 +292,11 @@ def _write_config(workdir, config):
             fh.write(run_config.to_json(config))
 
 
-def _train_epoch(run, ts, ds, epoch, progress, mix=None):
+def _train_epoch(run, ts, data, epoch, progress):
     """One epoch of optimizer steps: ``(train state, per-step stats on the device)``.
-    One random stream per epoch (and per process), so a resumed run draws the same
-    crops."""
+    ``data``: an open ``(dataset, mix dataset or None)`` per source; sequence i comes
+    from source ``i % len(run.sources)``. One random stream per epoch (and per process),
+    so a resumed run draws the same crops."""
     config, procs = run.config, jax.process_count()
     rng = np.random.default_rng([config.seed, epoch] + (
         [jax.process_index()] if procs > 1 else []))
@@ -287,13 +304,14 @@ def _train_epoch(run, ts, ds, epoch, progress, mix=None):
     bar = tqdm(range(config.steps_per_epoch), desc=f"epoch {epoch}/{config.epochs}",
                disable=not progress, leave=False)
     for i in bar:
+        src, (ds, mix) = run.sources[i % len(run.sources)], data[i % len(run.sources)]
         frames, targets, carry = recipe.training_sequence(
-            config, run.model, ds, mix, config.batch // procs, rng, run.accept)
+            src.config, run.model, ds, mix, config.batch // procs, rng, run.accept)
         if run.mesh is not None:
             frames, targets = sharding.shard((frames, targets), run.mesh, axis=1)
             carry = sharding.shard(carry, run.mesh, axis=0)
-        for sl in recipe.window_slices(run.plan, frames, targets):
-            ts, carry, st = run.step_fn(ts, carry, *sl)
+        for sl in recipe.window_slices(src.plan, frames, targets):
+            ts, carry, st = src.step_fn(ts, carry, *sl)
             stats.append(st)
         if progress and i % 10 == 9:  # one device sync per 10 sequences
             recent = sharding.to_host([s["loss"] for s in stats[-20:]])
@@ -361,8 +379,11 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
     end = config.epochs
     if stop_when is not None and history and stop_when(history):
         end = start_epoch  # stopped in an earlier call: nothing more to train
-    with Dataset(config.dataset) as ds, contextlib.ExitStack() as stack:
-        mix = stack.enter_context(Dataset(config.mix_dataset)) if config.mix_dataset else None
+    with contextlib.ExitStack() as stack:
+        data = [(stack.enter_context(Dataset(s.config.dataset)),
+                 stack.enter_context(Dataset(s.config.mix_dataset))
+                 if s.config.mix_dataset else None) for s in run.sources]
+        ds = data[0][0]
         val_rng = np.random.default_rng([config.seed, 10**6])
         val_crops = [jax.tree_util.tree_map(jnp.asarray, ds.crops(
             "val", config.factor, config.batch, run.plan.window, config.crop, val_rng,
@@ -370,7 +391,7 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
             for _ in range(config.val_batches)]
         for done, epoch in enumerate(range(start_epoch + 1, end + 1), 1):
             t0 = time.perf_counter()
-            ts, stats = _train_epoch(run, ts, ds, epoch, progress, mix)
+            ts, stats = _train_epoch(run, ts, data, epoch, progress)
             rec = {"epoch": epoch, "step": int(sharding.to_host(ts.step)),
                    **_epoch_stats(stats, workdir, epoch)}
             params = sharding.to_host(ts.params) if jax.process_count() > 1 else ts.params
@@ -397,6 +418,9 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
 _FIELD_HELP = {
     "loss": f"one of {', '.join(losses.NAMES)} (jtus.losses); default: the preset's",
     "model": f"one of {', '.join(models.TRAINABLE)}; default: the preset's",
+    "alternate": "a preset whose data and windows give every second training sequence "
+                 "(e.g. game-mix: moving content between whole long holds); the model, "
+                 "loss, optimizer, crop and batch stay this run's",
     "extend_holds": "continue the holds of held videos (data presets *-holds) past their "
                     "stored length to --seq-len frames",
 }

@@ -340,3 +340,37 @@ def _short_hold(tmp_path):
         "test": ((), 1, 1)}, jitters=("halton8",), hold_from=5)
     generate.generate(p, tmp_path / "short.h5", progress=False)
     return tmp_path / "short.h5"
+
+
+def test_alternate_preset_gives_every_second_sequence(tiny_data, tmp_path, monkeypatch):
+    """``alternate``: sequences 1, 3, ... follow the run's own data and windows, 2, 4, ...
+    the alternate preset's (another length, another window plan); the optimizer's
+    schedule counts both kinds of step; an unknown or self-alternating preset is refused
+    before anything is written."""
+    from jtus import recipe
+
+    monkeypatch.setitem(PRESETS, "alt-test", dataclasses.replace(
+        PRESETS["tiny"], dataset=tiny_data, seq_len=6, mode="tbptt", k1=3, k2=3))
+    config = _config(tiny_data, epochs=1, steps_per_epoch=4, alternate="alt-test")
+    drawn = []
+    real = recipe.training_sequence
+
+    def spy(cfg, *a, **kw):
+        out = real(cfg, *a, **kw)
+        drawn.append((cfg.seq_len, cfg.mode, out[1].shape[0]))
+        return out
+
+    monkeypatch.setattr(recipe, "training_sequence", spy)
+    _, hist = train.train_and_evaluate(config, tmp_path / "run", progress=False)
+    assert drawn == [(4, "bptt", 4), (6, "tbptt", 6)] * 2
+    # two BPTT windows (one step each) and two sequences of two TBPTT windows
+    assert hist[0]["step"] == recipe.steps_per_epoch(config) == 2 * 1 + 2 * 2
+    assert np.isfinite(hist[0]["train_loss"]) and np.isfinite(hist[0]["val_psnr"])
+    assert recipe.alternate_config(config).crop == config.crop
+    monkeypatch.setitem(PRESETS, "alt-loop", dataclasses.replace(config, alternate="tiny"))
+    for name, msg in (("nope", "alternate: unknown preset 'nope'"),
+                      ("alt-loop", "alternate: preset 'alt-loop' alternates itself")):
+        with pytest.raises(ValueError, match=msg):
+            train.train_and_evaluate(dataclasses.replace(config, alternate=name),
+                                     tmp_path / name, progress=False)
+        assert not (tmp_path / name).exists()
