@@ -95,8 +95,9 @@ def sources(config: Config) -> list:
 
 def steps_per_epoch(config: Config) -> int:
     """Optimizer steps in one epoch: each sequence gives one per window of its plan."""
-    return sum(len(plan(c).windows) * len(range(i, config.steps_per_epoch, len(cs)))
-               for cs in [sources(config)] for i, c in enumerate(cs))
+    kinds = sources(config)
+    return sum(len(plan(c).windows) * len(range(i, config.steps_per_epoch, len(kinds)))
+               for i, c in enumerate(kinds))
 
 
 def optimizer_for(config: Config):
