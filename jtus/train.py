@@ -192,8 +192,8 @@ class _Run(NamedTuple):
     """What every epoch of a run shares."""
     config: Config
     model: Any
-    plan: recipe.Plan   # the run's own plan (validation crops are its window long)
-    sources: list       # _Source per kind of training sequence, taken in turn
+    sources: list       # _Source per kind of training sequence, taken in turn; the
+                        # first is the run's own (validation crops are its window long)
     eval_loss: Any      # jitted validation loss of one crop
     mesh: Any           # the data mesh, or None on one device
     accept: Any         # the model's training-crop acceptance hook
@@ -248,8 +248,7 @@ def _start(config, workdir, resume, overwrite, progress, force=False):
         ts = sharding.replicate(ts, mesh)
     eval_loss = jax.jit(lambda p, c, f, t: rollout.window_loss(
         model.step, loss_fn, p, c, f, t, loss_frames=srcs[0].plan.loss_frames)[0])
-    run = _Run(config, model, srcs[0].plan, srcs, eval_loss, mesh,
-               recipe.accept_for(config), replacing)
+    run = _Run(config, model, srcs, eval_loss, mesh, recipe.accept_for(config), replacing)
     return run, ts, start_epoch, history
 
 
@@ -386,7 +385,7 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
         ds = data[0][0]
         val_rng = np.random.default_rng([config.seed, 10**6])
         val_crops = [jax.tree_util.tree_map(jnp.asarray, ds.crops(
-            "val", config.factor, config.batch, run.plan.window, config.crop, val_rng,
+            "val", config.factor, config.batch, run.sources[0].plan.window, config.crop, val_rng,
             extend_holds=config.extend_holds))
             for _ in range(config.val_batches)]
         for done, epoch in enumerate(range(start_epoch + 1, end + 1), 1):
