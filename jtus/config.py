@@ -63,6 +63,7 @@ class Config:
                                   # (jtus.data.Dataset.sequence_frames)
     alternate: str = ""           # a preset: every second training sequence is drawn from
                                   # its data and cut into its windows (recipe.alternate_config)
+    alternate_loss: str = ""      # the loss of those sequences; '' = the run's own
 
     def __post_init__(self):
         positive = ("factor", "seq_len", "batch", "crop", "epochs", "steps_per_epoch",
@@ -112,6 +113,12 @@ class Config:
             raise ValueError(f"alternate: expected a preset name or '', got {self.alternate!r}")
         if self.loss not in losses.NAMES:
             raise ValueError(f"loss: expected one of {losses.NAMES}, got {self.loss!r}")
+        if self.alternate_loss not in ("",) + losses.NAMES:
+            raise ValueError(f"alternate_loss: expected '' or one of {losses.NAMES}, got "
+                             f"{self.alternate_loss!r}")
+        if self.alternate_loss and not self.alternate:
+            raise ValueError(f"alternate_loss: {self.alternate_loss!r} needs an alternate "
+                             "preset (alternate), which this config does not name")
 
 
 PRESETS = {

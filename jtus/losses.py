@@ -11,6 +11,10 @@ start of a video, ``has_prev`` False) or the reprojection leaves the image, ``y 
 
 - ``l1``, ``mse``;
 - ``salvi`` (eq. 43): ``mean(x^2) + mean((x - y)^2)``;
+- ``log-mse``: the batch mean of ``log(mean(x^2) + 1e-7)`` per crop (minus its PSNR up
+  to scale and offset); ``log-salvi``: the same of Salvi's loss per crop,
+  ``log(mean(x^2) + mean((x - y)^2) + 1e-7)``, so a flicker on a still surface (its
+  error changing from frame to frame) costs relative to the crop's own error;
 - ``st`` with θ (eq. 51-52): ``mean(x^2 + y^2 - 2θxy)``;
 - ``st-linear`` with θ (eq. 54-55): ``mean(|x| + |y| + θ(|x - y| - |x| - |y|))``:
   θ=0 is the L1 of the current and the previous error, θ=1 the temporal term
@@ -35,7 +39,8 @@ import jax.numpy as jnp
 
 from jtus import metrics, perceptual, sampling
 
-NAMES = ("l1", "mse", "log-mse", "salvi", "st", "st-linear", "ssim", "ssim-srgb", "kpn")
+NAMES = ("l1", "mse", "log-mse", "log-salvi", "salvi", "st", "st-linear", "ssim", "ssim-srgb",
+         "kpn")
 
 
 def warp_previous(prev, motion, factor, method):
@@ -68,12 +73,15 @@ def _mse(out, target, *_):
 LOG_MSE_FLOOR = 1e-7  # added to each crop's MSE before the log: PSNR 70 dB
 
 
+def _per_crop(values):
+    return jnp.mean(values, axis=tuple(range(1, values.ndim)))
+
+
 def _log_mse(out, target, *_):
     """The mean over the batch of ``log(MSE + LOG_MSE_FLOOR)`` per crop: minus its PSNR up
     to scale and offset, so each crop's error counts relative to itself, as in a mean
     of per-frame PSNRs, and a dark crop weighs as much as a bright one."""
-    per_crop = jnp.mean(jnp.square(out - target), axis=tuple(range(1, out.ndim)))
-    return jnp.mean(jnp.log(per_crop + LOG_MSE_FLOOR))
+    return jnp.mean(jnp.log(_per_crop(jnp.square(out - target)) + LOG_MSE_FLOOR))
 
 
 def _ssim(out, target, *_):
@@ -89,6 +97,9 @@ def _temporal(kind, theta, factor, method, out, target, prev_out, prev_target, h
     x, y = errors(out, target, prev_out, prev_target, has_prev, frame, factor, method)
     if kind == "salvi":
         return jnp.mean(x * x) + jnp.mean(jnp.square(x - y))
+    if kind == "log-salvi":
+        per_crop = _per_crop(x * x) + _per_crop(jnp.square(x - y))
+        return jnp.mean(jnp.log(per_crop + LOG_MSE_FLOOR))
     if kind == "st":
         return jnp.mean(x * x + y * y - 2 * theta * x * y)
     return jnp.mean(st_linear_terms(x, y, theta))
@@ -116,7 +127,7 @@ def make(name, factor, theta=0.5, method="bilinear", perceptual_weights=None,
     plain = {"l1": _l1, "mse": _mse, "log-mse": _log_mse, "ssim": _ssim, "ssim-srgb": _ssim_srgb}
     if name in plain:
         base = plain[name]
-    elif name in ("salvi", "st", "st-linear"):
+    elif name in ("salvi", "log-salvi", "st", "st-linear"):
         if not 0.0 <= theta <= 1.0:
             raise ValueError(f"theta: expected a value in [0, 1], got {theta}")
         base = functools.partial(_temporal, name, theta, factor, method)

@@ -70,7 +70,8 @@ ALTERNATE_FIELDS = ("dataset", "data_preset", "mix_dataset", "mix_fraction", "se
 
 def alternate_config(config: Config) -> Optional[Config]:
     """The config of a run's every second training sequence (the 2nd, 4th, ... of each
-    epoch): ``config`` with ``ALTERNATE_FIELDS`` from the preset ``config.alternate``;
+    epoch): ``config`` with ``ALTERNATE_FIELDS`` from the preset ``config.alternate``,
+    and the loss ``config.alternate_loss`` when one is named (else the run's own);
     None when the run does not alternate. Moving content between whole long holds, for
     example, needs two sequence lengths, which one batch cannot hold."""
     if not config.alternate:
@@ -82,7 +83,8 @@ def alternate_config(config: Config) -> Optional[Config]:
     if base.alternate:
         raise ValueError(f"alternate: preset {config.alternate!r} alternates itself "
                          f"(with {base.alternate!r}); name a preset that does not")
-    return dataclasses.replace(config, alternate="",
+    return dataclasses.replace(config, alternate="", alternate_loss="",
+                               loss=config.alternate_loss or config.loss,
                                **{f: getattr(base, f) for f in ALTERNATE_FIELDS})
 
 

@@ -218,12 +218,12 @@ def _start(config, workdir, resume, overwrite, progress, force=False):
             raise ValueError(f"batch: {config.batch} is not a multiple of the {procs} "
                              "processes")
     recipe.check_data(config)
-    model, loss_fn, opt = recipe.model_for(config), recipe.loss_for(config), \
-        recipe.optimizer_for(config)
+    model, opt = recipe.model_for(config), recipe.optimizer_for(config)
+    loss_fns = [recipe.loss_for(c) for c in configs]  # the run's own first
     ts = create_train_state(loading.init_params(config), opt)
     mesh = sharding.data_mesh(config.batch)
     srcs = []
-    for c in configs:
+    for c, loss_fn in zip(configs, loss_fns):
         plan = recipe.plan(c)
         step_fn = make_train_step(model, loss_fn, opt, loss_frames=plan.loss_frames,
                                   keep_at=plan.keep_at, remat=config.remat,
@@ -247,7 +247,7 @@ def _start(config, workdir, resume, overwrite, progress, force=False):
     if mesh is not None:  # batch split over the devices, parameters replicated
         ts = sharding.replicate(ts, mesh)
     eval_loss = jax.jit(lambda p, c, f, t: rollout.window_loss(
-        model.step, loss_fn, p, c, f, t, loss_frames=srcs[0].plan.loss_frames)[0])
+        model.step, loss_fns[0], p, c, f, t, loss_frames=srcs[0].plan.loss_frames)[0])
     run = _Run(config, model, srcs, eval_loss, mesh, recipe.accept_for(config), replacing)
     return run, ts, start_epoch, history
 
@@ -419,7 +419,10 @@ _FIELD_HELP = {
     "model": f"one of {', '.join(models.TRAINABLE)}; default: the preset's",
     "alternate": "a preset whose data and windows give every second training sequence "
                  "(e.g. game-mix: moving content between whole long holds); the model, "
-                 "loss, optimizer, crop and batch stay this run's",
+                 "optimizer, crop and batch stay this run's, and so does the loss unless "
+                 "--alternate-loss names another",
+    "alternate_loss": "the loss of the --alternate sequences (one of the --loss names); "
+                      "default: this run's --loss",
     "extend_holds": "continue the holds of held videos (data presets *-holds) past their "
                     "stored length to --seq-len frames",
 }

@@ -1,5 +1,6 @@
 """Losses of thesis sec. 4.3.3, on hand-made cases."""
 
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -60,6 +61,34 @@ def test_quadratic_st_and_salvi(rng):
                                jnp.mean(x * x + y * y - 0.6 * x * y), rtol=1e-5)
     np.testing.assert_allclose(losses.make("salvi", 2)(*args),
                                jnp.mean(x * x) + jnp.mean((x - y) ** 2), rtol=1e-5)
+
+
+def test_log_salvi_is_the_batch_mean_of_log_salvi_per_crop(rng):
+    """``log-salvi``: the batch mean of log(mean(x^2) + mean((x - y)^2) + 1e-7) per crop,
+    against numpy in float64 (1e-5); an error that stays put on a still surface costs
+    what ``log-mse`` costs, and one that flips sign costs log(5) more (its change is twice
+    the error); with no previous frame y = 0, so the temporal part equals the spatial."""
+    shape = (2, 8, 10, 3)
+    target, prev_target = (rng.uniform(size=shape) * np.array([1.0, 0.02])[:, None, None, None]
+                           for _ in range(2))
+    x, y = (rng.normal(size=shape) * 0.01 for _ in range(2))
+    frame = _frame(np.zeros((2, 4, 5, 2), np.float32))
+    loss = losses.make("log-salvi", 2)
+    f32 = functools.partial(jnp.asarray, dtype=jnp.float32)
+
+    def call(err, prev_err, has_prev=True):
+        return float(loss(f32(target + err), f32(target), f32(prev_target + prev_err),
+                          f32(prev_target), jnp.asarray(has_prev), frame))
+
+    per_crop = (x ** 2).mean(axis=(1, 2, 3)) + ((x - y) ** 2).mean(axis=(1, 2, 3))
+    np.testing.assert_allclose(call(x, y), np.mean(np.log(per_crop + 1e-7)), rtol=1e-5)
+    log_mse = float(losses.make("log-mse", 2)(f32(target + x), f32(target), None, None, None,
+                                               None))
+    np.testing.assert_allclose(call(x, x), log_mse, rtol=1e-5)
+    mse = (x ** 2).mean(axis=(1, 2, 3))
+    np.testing.assert_allclose(call(x, -x), np.mean(np.log(5 * mse + 1e-7)), rtol=1e-5)
+    np.testing.assert_allclose(call(x, y, has_prev=False), np.mean(np.log(2 * mse + 1e-7)),
+                               rtol=1e-5)
 
 
 def test_previous_error_is_warped_with_motion(rng):

@@ -344,25 +344,34 @@ def _short_hold(tmp_path):
 
 def test_alternate_preset_gives_every_second_sequence(tiny_data, tmp_path, monkeypatch):
     """``alternate``: sequences 1, 3, ... follow the run's own data and windows, 2, 4, ...
-    the alternate preset's (another length, another window plan); the optimizer's
-    schedule counts both kinds of step; an unknown or self-alternating preset is refused
-    before anything is written."""
+    the alternate preset's (another length, another window plan), with the loss
+    ``alternate_loss`` where one is named; the optimizer's schedule counts both kinds of
+    step; an unknown or self-alternating preset, an unknown alternate loss or one without
+    an alternate preset are refused before anything is written."""
     from jtus import recipe
 
     monkeypatch.setitem(PRESETS, "alt-test", dataclasses.replace(
         PRESETS["tiny"], dataset=tiny_data, seq_len=6, mode="tbptt", k1=3, k2=3))
-    config = _config(tiny_data, epochs=1, steps_per_epoch=4, alternate="alt-test")
-    drawn = []
-    real = recipe.training_sequence
+    config = _config(tiny_data, epochs=1, steps_per_epoch=4, alternate="alt-test",
+                     alternate_loss="log-salvi")
+    drawn, made = [], []
+    real, real_loss = recipe.training_sequence, recipe.loss_for
 
     def spy(cfg, *a, **kw):
         out = real(cfg, *a, **kw)
         drawn.append((cfg.seq_len, cfg.mode, out[1].shape[0]))
         return out
 
+    def spy_loss(cfg):
+        made.append((cfg.seq_len, cfg.loss))
+        return real_loss(cfg)
+
     monkeypatch.setattr(recipe, "training_sequence", spy)
+    monkeypatch.setattr(recipe, "loss_for", spy_loss)
     _, hist = train.train_and_evaluate(config, tmp_path / "run", progress=False)
     assert drawn == [(4, "bptt", 4), (6, "tbptt", 6)] * 2
+    assert made == [(4, "l1"), (6, "log-salvi")]  # the run's own steps and validation: l1
+    assert recipe.alternate_config(dataclasses.replace(config, alternate_loss="")).loss == "l1"
     # two BPTT windows (one step each) and two sequences of two TBPTT windows
     assert hist[0]["step"] == recipe.steps_per_epoch(config) == 2 * 1 + 2 * 2
     assert np.isfinite(hist[0]["train_loss"]) and np.isfinite(hist[0]["val_psnr"])
@@ -374,3 +383,7 @@ def test_alternate_preset_gives_every_second_sequence(tiny_data, tmp_path, monke
             train.train_and_evaluate(dataclasses.replace(config, alternate=name),
                                      tmp_path / name, progress=False)
         assert not (tmp_path / name).exists()
+    for kw, msg in (({"alternate_loss": "nope"}, "alternate_loss: expected '' or one of"),
+                    ({"alternate": ""}, "alternate_loss: 'log-salvi' needs an alternate")):
+        with pytest.raises(ValueError, match=msg):
+            dataclasses.replace(config, **kw)
