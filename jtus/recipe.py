@@ -63,7 +63,8 @@ def plan(config: Config) -> Plan:
 
 
 # what ``Config.alternate`` takes from its preset: where the sequences come from and
-# how they are cut into optimizer steps; the model, loss, optimizer, crop and batch stay
+# how they are cut into optimizer steps; the model, optimizer, crop and batch stay, and
+# so does the loss unless ``Config.alternate_loss`` names another
 ALTERNATE_FIELDS = ("dataset", "data_preset", "mix_dataset", "mix_fraction", "seq_len",
                     "mode", "k1", "k2", "loss_frames", "extend_holds")
 

@@ -185,6 +185,7 @@ class _Source(NamedTuple):
     the run's config, or its alternate (``recipe.sources``)."""
     config: Config
     plan: recipe.Plan
+    loss_fn: Any        # recipe.loss_for(config)
     step_fn: Any        # the jitted optimizer step (make_train_step) for the plan's windows
 
 
@@ -219,12 +220,11 @@ def _start(config, workdir, resume, overwrite, progress, force=False):
                              "processes")
     recipe.check_data(config)
     model, opt = recipe.model_for(config), recipe.optimizer_for(config)
-    loss_fns = [recipe.loss_for(c) for c in configs]  # the run's own first
     ts = create_train_state(loading.init_params(config), opt)
     mesh = sharding.data_mesh(config.batch)
     srcs = []
-    for c, loss_fn in zip(configs, loss_fns):
-        plan = recipe.plan(c)
+    for c in configs:
+        plan, loss_fn = recipe.plan(c), recipe.loss_for(c)
         step_fn = make_train_step(model, loss_fn, opt, loss_frames=plan.loss_frames,
                                   keep_at=plan.keep_at, remat=config.remat,
                                   hoist=config.hoist)
@@ -233,7 +233,7 @@ def _start(config, workdir, resume, overwrite, progress, force=False):
             check_budget(memory, 4 * _nbytes(ts.params) + 2 ** 20, workdir, force,
                          what="this training step",
                          smaller="a smaller --batch, --crop or --k2/--seq-len, or --remat")
-        srcs.append(_Source(c, plan, step_fn))
+        srcs.append(_Source(c, plan, loss_fn, step_fn))
     replacing = overwrite and not resume and os.path.exists(
         os.path.join(workdir, checkpoint.CHECKPOINT))
     if main:
@@ -247,7 +247,7 @@ def _start(config, workdir, resume, overwrite, progress, force=False):
     if mesh is not None:  # batch split over the devices, parameters replicated
         ts = sharding.replicate(ts, mesh)
     eval_loss = jax.jit(lambda p, c, f, t: rollout.window_loss(
-        model.step, loss_fns[0], p, c, f, t, loss_frames=srcs[0].plan.loss_frames)[0])
+        model.step, srcs[0].loss_fn, p, c, f, t, loss_frames=srcs[0].plan.loss_frames)[0])
     run = _Run(config, model, srcs, eval_loss, mesh, recipe.accept_for(config), replacing)
     return run, ts, start_epoch, history
 
