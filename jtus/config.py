@@ -28,6 +28,7 @@ class Config:
     factor: int = 4
     loss: str = "l1"
     theta: float = 0.5
+    temporal_weight: float = 1.0  # the weight of salvi's and log-salvi's temporal term
     seq_len: int = 8
     loss_frames: int = 3
     mode: str = "bptt"          # bptt | tbptt
@@ -75,7 +76,8 @@ class Config:
         if self.crop % 4 or self.crop % self.factor:
             raise ValueError(f"crop: expected a multiple of 4 and of factor {self.factor}, "
                              f"got {self.crop}")
-        for name in ("lr", "theta", "lr_end", "clip_norm", "perceptual_weight"):
+        for name in ("lr", "theta", "lr_end", "clip_norm", "perceptual_weight",
+                     "temporal_weight"):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise ValueError(f"{name}: expected a finite number, got {v!r}")
@@ -116,6 +118,13 @@ class Config:
         if self.alternate_loss not in ("",) + losses.NAMES:
             raise ValueError(f"alternate_loss: expected '' or one of {losses.NAMES}, got "
                              f"{self.alternate_loss!r}")
+        if self.temporal_weight < 0:
+            raise ValueError(f"temporal_weight: expected >= 0, got {self.temporal_weight}")
+        if (self.temporal_weight != 1.0 and self.loss not in losses.WEIGHTED_TEMPORAL
+                and self.alternate_loss not in losses.WEIGHTED_TEMPORAL):
+            raise ValueError(f"temporal_weight: {self.temporal_weight} weighs the temporal "
+                             f"term of {' or '.join(losses.WEIGHTED_TEMPORAL)}, which this "
+                             f"config's loss ({self.loss!r}) does not use")
         if self.alternate_loss and not self.alternate:
             raise ValueError(f"alternate_loss: {self.alternate_loss!r} needs an alternate "
                              "preset (alternate), which this config does not name")

@@ -10,10 +10,11 @@ reprojection of ``docs/conventions.md``). Where there is no previous frame (the
 start of a video, ``has_prev`` False) or the reprojection leaves the image, ``y = 0``.
 
 - ``l1``, ``mse``;
-- ``salvi`` (eq. 43): ``mean(x^2) + mean((x - y)^2)``;
+- ``salvi`` (eq. 43): ``mean(x^2) + w * mean((x - y)^2)``, ``w`` the temporal weight
+  (1 in the thesis);
 - ``log-mse``: the batch mean of ``log(mean(x^2) + 1e-7)`` per crop (minus its PSNR up
   to scale and offset); ``log-salvi``: the same of Salvi's loss per crop,
-  ``log(mean(x^2) + mean((x - y)^2) + 1e-7)``, so a flicker on a still surface (its
+  ``log(mean(x^2) + w * mean((x - y)^2) + 1e-7)``, so a flicker on a still surface (its
   error changing from frame to frame) costs relative to the crop's own error;
 - ``st`` with θ (eq. 51-52): ``mean(x^2 + y^2 - 2θxy)``;
 - ``st-linear`` with θ (eq. 54-55): ``mean(|x| + |y| + θ(|x - y| - |x| - |y|))``:
@@ -92,13 +93,13 @@ def _ssim_srgb(out, target, *_):
     return _ssim(sampling.srgb_encode(out), sampling.srgb_encode(target))
 
 
-def _temporal(kind, theta, factor, method, out, target, prev_out, prev_target, has_prev,
-              frame):
+def _temporal(kind, theta, weight, factor, method, out, target, prev_out, prev_target,
+              has_prev, frame):
     x, y = errors(out, target, prev_out, prev_target, has_prev, frame, factor, method)
     if kind == "salvi":
-        return jnp.mean(x * x) + jnp.mean(jnp.square(x - y))
+        return jnp.mean(x * x) + weight * jnp.mean(jnp.square(x - y))
     if kind == "log-salvi":
-        per_crop = _per_crop(x * x) + _per_crop(jnp.square(x - y))
+        per_crop = _per_crop(x * x) + weight * _per_crop(jnp.square(x - y))
         return jnp.mean(jnp.log(per_crop + LOG_MSE_FLOOR))
     if kind == "st":
         return jnp.mean(x * x + y * y - 2 * theta * x * y)
@@ -119,18 +120,26 @@ def with_perceptual(base, weights_path, weight=0.1):
     return loss
 
 
+WEIGHTED_TEMPORAL = ("salvi", "log-salvi")  # the losses ``temporal_weight`` applies to
+
+
 def make(name, factor, theta=0.5, method="bilinear", perceptual_weights=None,
-         perceptual_weight=0.1):
+         perceptual_weight=0.1, temporal_weight=1.0):
     """The loss ``name`` (one of ``NAMES``) for up-sampling factor ``factor``; with
     ``perceptual_weights`` (an ``.npz`` of VGG-16, see ``jtus.perceptual``) the
-    perceptual term is added with weight ``perceptual_weight``."""
+    perceptual term is added with weight ``perceptual_weight``. ``temporal_weight``
+    scales the temporal term of ``WEIGHTED_TEMPORAL`` (the other losses have none, and
+    ignore it)."""
+    if not 0.0 <= temporal_weight < float("inf"):
+        raise ValueError(f"temporal_weight: expected a finite value >= 0, got "
+                         f"{temporal_weight}")
     plain = {"l1": _l1, "mse": _mse, "log-mse": _log_mse, "ssim": _ssim, "ssim-srgb": _ssim_srgb}
     if name in plain:
         base = plain[name]
     elif name in ("salvi", "log-salvi", "st", "st-linear"):
         if not 0.0 <= theta <= 1.0:
             raise ValueError(f"theta: expected a value in [0, 1], got {theta}")
-        base = functools.partial(_temporal, name, theta, factor, method)
+        base = functools.partial(_temporal, name, theta, temporal_weight, factor, method)
     elif name == "kpn":
         base = kpn_loss(factor)
     else:

@@ -43,6 +43,7 @@ def loss_for(config: Config):
     """``losses.make(config.loss, ...)``, plus NSRR's perceptual term when the config
     names VGG-16 weights."""
     return losses.make(config.loss, config.factor, theta=config.theta,
+                       temporal_weight=config.temporal_weight,
                        perceptual_weights=config.perceptual_weights or None,
                        perceptual_weight=config.perceptual_weight)
 
@@ -84,8 +85,11 @@ def alternate_config(config: Config) -> Optional[Config]:
     if base.alternate:
         raise ValueError(f"alternate: preset {config.alternate!r} alternates itself "
                          f"(with {base.alternate!r}); name a preset that does not")
-    return dataclasses.replace(config, alternate="", alternate_loss="",
-                               loss=config.alternate_loss or config.loss,
+    loss = config.alternate_loss or config.loss
+    # the temporal weight belongs to the loss: it stays only with a loss that weighs
+    weight = config.temporal_weight if loss in losses.WEIGHTED_TEMPORAL else 1.0
+    return dataclasses.replace(config, alternate="", alternate_loss="", loss=loss,
+                               temporal_weight=weight,
                                **{f: getattr(base, f) for f in ALTERNATE_FIELDS})
 
 

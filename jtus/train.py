@@ -423,6 +423,8 @@ _FIELD_HELP = {
                  "--alternate-loss names another",
     "alternate_loss": "the loss of the --alternate sequences (one of the --loss names); "
                       "default: this run's --loss",
+    "temporal_weight": "the weight of the temporal term of --loss salvi and log-salvi "
+                       "(default 1, the thesis's eq. 43)",
     "extend_holds": "continue the holds of held videos (data presets *-holds) past their "
                     "stored length to --seq-len frames",
 }

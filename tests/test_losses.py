@@ -61,13 +61,16 @@ def test_quadratic_st_and_salvi(rng):
                                jnp.mean(x * x + y * y - 0.6 * x * y), rtol=1e-5)
     np.testing.assert_allclose(losses.make("salvi", 2)(*args),
                                jnp.mean(x * x) + jnp.mean((x - y) ** 2), rtol=1e-5)
+    np.testing.assert_allclose(losses.make("salvi", 2, temporal_weight=2.5)(*args),
+                               jnp.mean(x * x) + 2.5 * jnp.mean((x - y) ** 2), rtol=1e-5)
 
 
 def test_log_salvi_is_the_batch_mean_of_log_salvi_per_crop(rng):
-    """``log-salvi``: the batch mean of log(mean(x^2) + mean((x - y)^2) + 1e-7) per crop,
+    """``log-salvi``: the batch mean of log(mean(x^2) + w mean((x - y)^2) + 1e-7) per crop,
     against numpy in float64 (1e-5); an error that stays put on a still surface costs
-    what ``log-mse`` costs, and one that flips sign costs log(5) more (its change is twice
-    the error); with no previous frame y = 0, so the temporal part equals the spatial."""
+    what ``log-mse`` costs, and one that flips sign costs log(1 + 4w) more (its change is
+    twice the error); with no previous frame y = 0, so the temporal part equals the
+    spatial; w = 0 is log-mse; a negative or non-finite w is refused."""
     shape = (2, 8, 10, 3)
     target, prev_target = (rng.uniform(size=shape) * np.array([1.0, 0.02])[:, None, None, None]
                            for _ in range(2))
@@ -89,6 +92,15 @@ def test_log_salvi_is_the_batch_mean_of_log_salvi_per_crop(rng):
     np.testing.assert_allclose(call(x, -x), np.mean(np.log(5 * mse + 1e-7)), rtol=1e-5)
     np.testing.assert_allclose(call(x, y, has_prev=False), np.mean(np.log(2 * mse + 1e-7)),
                                rtol=1e-5)
+    loss = losses.make("log-salvi", 2, temporal_weight=4.0)  # w * mean((x - y)^2)
+    per_crop = (x ** 2).mean(axis=(1, 2, 3)) + 4.0 * ((x - y) ** 2).mean(axis=(1, 2, 3))
+    np.testing.assert_allclose(call(x, y), np.mean(np.log(per_crop + 1e-7)), rtol=1e-5)
+    np.testing.assert_allclose(call(x, -x), np.mean(np.log(17 * mse + 1e-7)), rtol=1e-5)
+    loss = losses.make("log-salvi", 2, temporal_weight=0.0)
+    np.testing.assert_allclose(call(x, -x), log_mse, rtol=1e-5)
+    for bad in (-1.0, float("inf"), float("nan")):
+        with pytest.raises(ValueError, match="temporal_weight: expected a finite value >= 0"):
+            losses.make("log-salvi", 2, temporal_weight=bad)
 
 
 def test_previous_error_is_warped_with_motion(rng):

@@ -347,7 +347,8 @@ def test_alternate_preset_gives_every_second_sequence(tiny_data, tmp_path, monke
     the alternate preset's (another length, another window plan), with the loss
     ``alternate_loss`` where one is named; the optimizer's schedule counts both kinds of
     step; an unknown or self-alternating preset, an unknown alternate loss or one without
-    an alternate preset are refused before anything is written."""
+    an alternate preset, or a temporal weight with no loss that has a temporal term, are
+    refused before anything is written; the weight stays with the loss that has one."""
     from jtus import recipe
 
     monkeypatch.setitem(PRESETS, "alt-test", dataclasses.replace(
@@ -384,6 +385,13 @@ def test_alternate_preset_gives_every_second_sequence(tiny_data, tmp_path, monke
                                      tmp_path / name, progress=False)
         assert not (tmp_path / name).exists()
     for kw, msg in (({"alternate_loss": "nope"}, "alternate_loss: expected '' or one of"),
-                    ({"alternate": ""}, "alternate_loss: 'log-salvi' needs an alternate")):
+                    ({"alternate": ""}, "alternate_loss: 'log-salvi' needs an alternate"),
+                    ({"alternate_loss": "", "temporal_weight": 3.0},
+                     "temporal_weight: 3.0 weighs the temporal term of salvi or log-salvi")):
         with pytest.raises(ValueError, match=msg):
             dataclasses.replace(config, **kw)
+    # the temporal weight goes with the loss that weighs a temporal term, whichever it is
+    weighted = dataclasses.replace(config, temporal_weight=3.0)
+    assert recipe.alternate_config(weighted).temporal_weight == 3.0
+    weighted = dataclasses.replace(weighted, loss="log-salvi", alternate_loss="log-mse")
+    assert recipe.alternate_config(weighted).temporal_weight == 1.0
