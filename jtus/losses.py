@@ -137,7 +137,7 @@ def make(name, factor, theta=0.5, method="bilinear", perceptual_weights=None,
     if name in plain:
         base = plain[name]
     elif name in ("salvi", "log-salvi", "st", "st-linear"):
-        if not 0.0 <= theta <= 1.0:
+        if name in ("st", "st-linear") and not 0.0 <= theta <= 1.0:
             raise ValueError(f"theta: expected a value in [0, 1], got {theta}")
         base = functools.partial(_temporal, name, theta, temporal_weight, factor, method)
     elif name == "kpn":
