@@ -113,6 +113,10 @@ class Config:
                              f"{self.mix_fraction!r}")
         if not isinstance(self.alternate, str):
             raise ValueError(f"alternate: expected a preset name or '', got {self.alternate!r}")
+        self._check_losses()
+
+    def _check_losses(self):
+        """The loss names, and a temporal weight only where a loss of the run has one."""
         if self.loss not in losses.NAMES:
             raise ValueError(f"loss: expected one of {losses.NAMES}, got {self.loss!r}")
         if self.alternate_loss not in ("",) + losses.NAMES:
