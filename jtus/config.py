@@ -29,6 +29,8 @@ class Config:
     loss: str = "l1"
     theta: float = 0.5
     temporal_weight: float = 1.0  # the weight of salvi's and log-salvi's temporal term
+    temporal_from: int = 0      # > 0: temporal_weight from this frame of each sequence on,
+                                # the thesis's weight 1 before it (recipe.late_loss_for)
     seq_len: int = 8
     loss_frames: int = 3
     mode: str = "bptt"          # bptt | tbptt
@@ -132,6 +134,29 @@ class Config:
         if self.alternate_loss and not self.alternate:
             raise ValueError(f"alternate_loss: {self.alternate_loss!r} needs an alternate "
                              "preset (alternate), which this config does not name")
+        self._check_temporal_from()
+
+    def _check_temporal_from(self):
+        """``temporal_from`` counts frames of a sequence: it needs a weighted temporal
+        term to move and one training window per sequence (the window's index is then
+        the sequence's)."""
+        v = self.temporal_from
+        if not isinstance(v, int) or isinstance(v, bool) or v < 0:
+            raise ValueError(f"temporal_from: expected an integer >= 0, got {v!r}")
+        if not v:
+            return
+        if self.loss not in losses.WEIGHTED_TEMPORAL or self.temporal_weight == 1.0:
+            raise ValueError(f"temporal_from: {v} moves the temporal weight of "
+                             f"{' or '.join(losses.WEIGHTED_TEMPORAL)} from 1 to "
+                             f"temporal_weight, but this config has loss {self.loss!r} and "
+                             f"temporal_weight {self.temporal_weight}")
+        if self.mode == "tbptt" and not self.k1 == self.k2 == self.seq_len:
+            raise ValueError(f"temporal_from: needs one window per sequence (mode bptt, or "
+                             f"k1 = k2 = seq_len), got k1={self.k1}, k2={self.k2}, "
+                             f"seq_len={self.seq_len}")
+        if v >= self.seq_len:
+            raise ValueError(f"temporal_from: expected a frame before seq_len={self.seq_len}, "
+                             f"got {v}")
 
 
 PRESETS = {

@@ -41,9 +41,22 @@ def model_for(config: Config) -> models.Model:
 
 def loss_for(config: Config):
     """``losses.make(config.loss, ...)``, plus NSRR's perceptual term when the config
-    names VGG-16 weights."""
+    names VGG-16 weights; with ``temporal_from``, the loss of the frames before it
+    (temporal weight 1; ``late_loss_for`` gives the rest)."""
+    return _loss(config, 1.0 if config.temporal_from else config.temporal_weight)
+
+
+def late_loss_for(config: Config):
+    """``(temporal_from, the loss with temporal_weight)`` for ``rollout.window_loss``'s
+    ``late``, or None when every frame has the same loss."""
+    if not config.temporal_from:
+        return None
+    return config.temporal_from, _loss(config, config.temporal_weight)
+
+
+def _loss(config, temporal_weight):
     return losses.make(config.loss, config.factor, theta=config.theta,
-                       temporal_weight=config.temporal_weight,
+                       temporal_weight=temporal_weight,
                        perceptual_weights=config.perceptual_weights or None,
                        perceptual_weight=config.perceptual_weight)
 
@@ -87,9 +100,10 @@ def alternate_config(config: Config) -> Optional[Config]:
                          f"(with {base.alternate!r}); name a preset that does not")
     loss = config.alternate_loss or config.loss
     # the temporal weight belongs to the loss: it stays only with a loss that weighs
-    weight = config.temporal_weight if loss in losses.WEIGHTED_TEMPORAL else 1.0
+    weighted = loss in losses.WEIGHTED_TEMPORAL
     return dataclasses.replace(config, alternate="", alternate_loss="", loss=loss,
-                               temporal_weight=weight,
+                               temporal_weight=config.temporal_weight if weighted else 1.0,
+                               temporal_from=config.temporal_from if weighted else 0,
                                **{f: getattr(base, f) for f in ALTERNATE_FIELDS})
 
 

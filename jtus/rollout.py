@@ -223,10 +223,13 @@ def _segment_reverse(step, loss_fn, params, carry, frames, prepared, targets, wi
 
 
 def window_loss(step, loss_fn, params, carry: Carry, frames, targets, *, loss_frames,
-                keep_at=None, remat=False, unroll=1, prepare=None):
+                keep_at=None, remat=False, unroll=1, prepare=None, late=None):
     """Mean of ``loss_fn`` over the last ``loss_frames`` frames of the window.
 
     ``loss_fn(out, target, prev_out, prev_target, has_prev, frame) -> scalar``.
+    ``late``: ``(index, late_fn)``: frames of the window from ``index`` on are scored
+    by ``late_fn`` instead (a loss that changes along a long sequence, e.g. a temporal
+    term weighted up once a static hold has had time to converge).
     Returns ``(loss, (final carry, carry after keep_at frames or None))``. Segments
     are cut at static indices, so frames before the loss frames compute no loss.
 
@@ -240,12 +243,15 @@ def window_loss(step, loss_fn, params, carry: Carry, frames, targets, *, loss_fr
         raise ValueError(f"loss_frames: expected 1..{n} (the window length), got {loss_frames}")
     if keep_at is not None and not 0 < keep_at <= n:
         raise ValueError(f"keep_at: expected 1..{n}, got {keep_at}")
+    late_at, late_fn = late if late is not None else (n, None)
+    if not 0 <= late_at <= n:
+        raise ValueError(f"late: expected a first frame in 0..{n}, got {late_at}")
     reverse = remat == "reverse"
     if reverse and unroll != 1:
         raise ValueError(f"unroll: remat='reverse' scans one frame at a time forward and "
                          f"back; expected 1, got {unroll}")
     body = None if reverse else _body(step, params, remat)
-    cuts = sorted({0, n - loss_frames, n} | ({keep_at} if keep_at else set()))
+    cuts = sorted({0, n - loss_frames, n, late_at} | ({keep_at} if keep_at else set()))
     total, kept = jnp.zeros((), jnp.float32), None
     for a, b in zip(cuts[:-1], cuts[1:]):
         seg_frames, seg_targets = jax.tree_util.tree_map(lambda x: x[a:b], (frames, targets))
@@ -253,11 +259,12 @@ def window_loss(step, loss_fn, params, carry: Carry, frames, targets, *, loss_fr
         if prepare is not None:  # per segment: slicing prepared HR tensors costs copies
             with jax.named_scope("prepare"):
                 prepared = jax.vmap(prepare)(seg_frames)
+        fn = late_fn if a >= late_at else loss_fn
         if reverse:
-            carry, losses = _segment_reverse(step, loss_fn, params, carry, seg_frames, prepared,
+            carry, losses = _segment_reverse(step, fn, params, carry, seg_frames, prepared,
                                              seg_targets, with_loss=a >= n - loss_frames)
         else:
-            carry, losses = _segment(body, loss_fn, carry, seg_frames, prepared, seg_targets,
+            carry, losses = _segment(body, fn, carry, seg_frames, prepared, seg_targets,
                                      with_loss=a >= n - loss_frames, unroll=unroll)
         total = total + losses.sum()
         if b == keep_at:

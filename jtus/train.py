@@ -64,7 +64,7 @@ def create_train_state(params, optimizer) -> TrainState:
 
 
 def make_train_step(model, loss_fn, optimizer, *, loss_frames, keep_at=None, remat=False,
-                    unroll=1, jit=True, hoist=False):
+                    unroll=1, jit=True, hoist=False, late=None):
     """``(train_state, carry, frames [T,B,...], targets [T,B,H,W,3]) ->
     (train_state, next carry, stats)``.
 
@@ -75,7 +75,8 @@ def make_train_step(model, loss_fn, optimizer, *, loss_frames, keep_at=None, rem
 
     ``hoist``: run the model's ``prepare`` before the scan (``rollout.window_loss``;
     the same values). Off by default: on XLA:CPU it measured no faster than scanning
-    the plain step (0.96-1.06x, docs/performance.md, "Training speed").
+    the plain step (0.96-1.06x, docs/performance.md, "Training speed"). ``late``:
+    ``(index, loss)`` for the window's frames from ``index`` on (``rollout.window_loss``).
     """
     step, prepare = rollout.parts(model) if hoist else (model.step, None)
 
@@ -83,7 +84,7 @@ def make_train_step(model, loss_fn, optimizer, *, loss_frames, keep_at=None, rem
         def f(p):
             return rollout.window_loss(step, loss_fn, p, carry, frames, targets,
                                        loss_frames=loss_frames, keep_at=keep_at, remat=remat,
-                                       unroll=unroll, prepare=prepare)
+                                       unroll=unroll, prepare=prepare, late=late)
 
         (loss, (last, kept)), grads = jax.value_and_grad(f, has_aux=True)(ts.params)
         with jax.named_scope("optimizer"):
@@ -227,7 +228,7 @@ def _start(config, workdir, resume, overwrite, progress, force=False):
         plan, loss_fn = recipe.plan(c), recipe.loss_for(c)
         step_fn = make_train_step(model, loss_fn, opt, loss_frames=plan.loss_frames,
                                   keep_at=plan.keep_at, remat=config.remat,
-                                  hoist=config.hoist)
+                                  hoist=config.hoist, late=recipe.late_loss_for(c))
         if mesh is None:  # one device: each step compiled once, its memory checked up front
             step_fn, memory = compile_step(c, model, step_fn, ts, plan)
             check_budget(memory, 4 * _nbytes(ts.params) + 2 ** 20, workdir, force,
@@ -425,6 +426,9 @@ _FIELD_HELP = {
                       "default: this run's --loss",
     "temporal_weight": "the weight of the temporal term of --loss salvi and log-salvi "
                        "(default 1, the thesis's eq. 43)",
+    "temporal_from": "apply --temporal-weight from this frame of each sequence on, weight "
+                     "1 before it (e.g. only once a static hold has had time to converge); "
+                     "needs one window per sequence; default 0: every frame",
     "extend_holds": "continue the holds of held videos (data presets *-holds) past their "
                     "stored length to --seq-len frames",
 }

@@ -457,3 +457,45 @@ def test_a_state_of_another_batch_than_the_frames_is_refused():
     two = jax.tree_util.tree_map(lambda x: x[0], frames)
     outs, _ = rollout.outputs(model.step, params, model.init_state(two), frames)
     assert outs.shape[:2] == (3, 2)
+
+
+def test_late_loss_scores_the_window_from_its_index_float64(x64):
+    """``window_loss(late=(k, late_fn))`` scores the window's frames from k on with
+    ``late_fn`` and the earlier loss frames with ``loss_fn``: its value and gradients
+    equal a Python loop's over the frames, with a temporal loss whose weight differs
+    between the two (previous output and target carried across the cut). Float64, but
+    the carry keeps the previous frame in float32, so the value agrees to 1e-10 and
+    the gradients, whose cotangents pass that float32 frame, to 1e-5."""
+    config = dlctus.Config(factor=4, dtype="float64")
+    model, params, frames, targets = _setup(T=6, config=config, dtype=np.float64)
+    carry = rollout.start(model.init_state(seqdata.first(frames)), targets[0])
+    early, late = losses.make("log-salvi", 4), losses.make("log-salvi", 4, temporal_weight=5.0)
+
+    def scanned(p):
+        return rollout.window_loss(model.step, early, p, carry, frames, targets,
+                                   loss_frames=5, late=(3, late))[0]
+
+    def looped(p):
+        state, prev_out, prev_target, has_prev = carry
+        total = 0.0
+        for t in range(6):
+            frame = jax.tree_util.tree_map(lambda x: x[t], frames)
+            out, state = model.step(p, state, frame)
+            if t >= 1:
+                fn = late if t >= 3 else early
+                total = total + fn(out, targets[t], prev_out, prev_target, has_prev, frame)
+            # the carry keeps the previous frame in float32, as rollout's scan does
+            prev_out, prev_target = out.astype(jnp.float32), targets[t].astype(jnp.float32)
+            has_prev = jnp.asarray(True)
+        return total / 5
+
+    vg = lambda f: jax.jit(jax.value_and_grad(f))(params)  # noqa: E731
+    (v1, g1), (v2, g2) = vg(scanned), vg(looped)
+    np.testing.assert_allclose(v1, v2, rtol=1e-10)
+    assert abs(float(v1) - float(jax.jit(lambda p: rollout.window_loss(
+        model.step, early, p, carry, frames, targets, loss_frames=5)[0])(params))) > 1e-3
+    for a, b in zip(jax.tree_util.tree_leaves(g1), jax.tree_util.tree_leaves(g2)):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-9)
+    with pytest.raises(ValueError, match="late: expected a first frame in 0..6, got 7"):
+        rollout.window_loss(model.step, early, params, carry, frames, targets, loss_frames=5,
+                            late=(7, late))

@@ -13,6 +13,7 @@ import pytest
 
 from jtus import evaluate, loading, losses, rollout, train, upsample
 from jtus.config import PRESETS
+from jtus.frame import Frame
 from jtus.files import UnknownKeyWarning
 from jtus.models import dlctus
 from tests import seqdata
@@ -340,6 +341,54 @@ def _short_hold(tmp_path):
         "test": ((), 1, 1)}, jitters=("halton8",), hold_from=5)
     generate.generate(p, tmp_path / "short.h5", progress=False)
     return tmp_path / "short.h5"
+
+
+def test_temporal_from_weighs_the_temporal_term_from_a_frame_on(tiny_data, tmp_path,
+                                                               monkeypatch):
+    """``temporal_from``: the run's optimizer steps score frames from it on with the
+    temporal weight and earlier frames with weight 1; it is refused without a weighted
+    temporal loss, with weight 1, with several windows per sequence, or past the
+    sequence; an alternate keeps it only with a loss that has a temporal term."""
+    from jtus import recipe
+
+    config = _config(tiny_data, epochs=1, steps_per_epoch=1, loss="log-salvi",
+                     temporal_weight=3.0, temporal_from=2)
+    rng = np.random.default_rng(0)
+    args = [jnp.asarray(rng.uniform(size=(2, 8, 8, 3)), jnp.float32) for _ in range(4)]
+    motion = jnp.zeros((2, 2, 2, 2))  # LR motion of a still 8x8 frame at 4x
+    args += [jnp.asarray(True), Frame(jnp.zeros((2, 2, 2, 3)), jnp.zeros((2, 2, 2, 1)), motion,
+                                      jnp.full((2, 2), 0.5))]
+    k, late = recipe.late_loss_for(config)
+    assert k == 2
+    np.testing.assert_allclose(late(*args), losses.make("log-salvi", 4, temporal_weight=3.0)(
+        *args), rtol=1e-6)
+    np.testing.assert_allclose(recipe.loss_for(config)(*args),
+                               losses.make("log-salvi", 4)(*args), rtol=1e-6)
+    assert abs(float(late(*args)) - float(recipe.loss_for(config)(*args))) > 0.1
+    assert recipe.late_loss_for(dataclasses.replace(config, temporal_from=0)) is None
+    built = []
+    real = train.make_train_step
+
+    def spy(*a, late=None, **kw):
+        built.append(None if late is None else late[0])
+        return real(*a, late=late, **kw)
+
+    monkeypatch.setattr(train, "make_train_step", spy)
+    _, hist = train.train_and_evaluate(config, tmp_path / "run", progress=False)
+    assert built == [2] and np.isfinite(hist[0]["train_loss"])
+    for kw, msg in (({"temporal_from": -1}, "temporal_from: expected an integer >= 0"),
+                    ({"loss": "l1", "temporal_weight": 1.0}, "temporal_from: 2 moves"),
+                    ({"temporal_weight": 1.0}, "temporal_from: 2 moves"),
+                    ({"temporal_from": 4}, "temporal_from: expected a frame before seq_len=4"),
+                    ({"mode": "tbptt", "k1": 2, "k2": 2},
+                     r"temporal_from: needs one window per sequence .* k1=2, k2=2, seq_len=4")):
+        with pytest.raises(ValueError, match=msg):
+            dataclasses.replace(config, **kw)
+    monkeypatch.setitem(PRESETS, "alt-long", dataclasses.replace(PRESETS["tiny"], seq_len=6))
+    alt = dataclasses.replace(config, alternate="alt-long")
+    assert recipe.alternate_config(alt).temporal_from == 2
+    alt = dataclasses.replace(alt, alternate_loss="log-mse")
+    assert recipe.alternate_config(alt).temporal_from == 0
 
 
 def test_alternate_preset_gives_every_second_sequence(tiny_data, tmp_path, monkeypatch):
