@@ -251,7 +251,9 @@ def window_loss(step, loss_fn, params, carry: Carry, frames, targets, *, loss_fr
         raise ValueError(f"unroll: remat='reverse' scans one frame at a time forward and "
                          f"back; expected 1, got {unroll}")
     body = None if reverse else _body(step, params, remat)
-    cuts = sorted({0, n - loss_frames, n, late_at} | ({keep_at} if keep_at else set()))
+    # frames before the loss frames score nothing: the late loss cuts only inside them
+    cuts = sorted({0, n - loss_frames, n, max(late_at, n - loss_frames)}
+                  | ({keep_at} if keep_at else set()))
     total, kept = jnp.zeros((), jnp.float32), None
     for a, b in zip(cuts[:-1], cuts[1:]):
         seg_frames, seg_targets = jax.tree_util.tree_map(lambda x: x[a:b], (frames, targets))

@@ -465,7 +465,8 @@ def test_late_loss_scores_the_window_from_its_index_float64(x64):
     equal a Python loop's over the frames, with a temporal loss whose weight differs
     between the two (previous output and target carried across the cut). Float64, but
     the carry keeps the previous frame in float32, so the value agrees to 1e-10 and
-    the gradients, whose cotangents pass that float32 frame, to 1e-5."""
+    the gradients, whose cotangents pass that float32 frame, to 1e-5. A first frame
+    before the loss frames scores all of them with ``late_fn``."""
     config = dlctus.Config(factor=4, dtype="float64")
     model, params, frames, targets = _setup(T=6, config=config, dtype=np.float64)
     carry = rollout.start(model.init_state(seqdata.first(frames)), targets[0])
@@ -496,6 +497,12 @@ def test_late_loss_scores_the_window_from_its_index_float64(x64):
         model.step, early, p, carry, frames, targets, loss_frames=5)[0])(params))) > 1e-3
     for a, b in zip(jax.tree_util.tree_leaves(g1), jax.tree_util.tree_leaves(g2)):
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-9)
+    # a late loss from before the loss frames scores all of them
+    np.testing.assert_allclose(
+        rollout.window_loss(model.step, early, params, carry, frames, targets, loss_frames=5,
+                            late=(0, late))[0],
+        rollout.window_loss(model.step, late, params, carry, frames, targets,
+                            loss_frames=5)[0], rtol=1e-12)
     with pytest.raises(ValueError, match="late: expected a first frame in 0..6, got 7"):
         rollout.window_loss(model.step, early, params, carry, frames, targets, loss_frames=5,
                             late=(7, late))
