@@ -11,6 +11,7 @@ array from the process-local pieces) and the same replicated state; XLA's collec
 
 from __future__ import annotations
 
+import os
 import sys
 
 import jax
@@ -26,6 +27,39 @@ def initialize(coordinator=None, num_processes=None, process_id=None):
     CPU processes exchange gradients over gloo."""
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
     jax.distributed.initialize(coordinator, num_processes, process_id)
+
+
+def host_cores():
+    """The cores this process may run on."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
+def use_host_devices(n, batch=None):
+    """Split XLA:CPU into ``n`` devices (``jax_num_cpu_devices``; None: one per core this
+    process may run on, ``host_cores``), fewer where ``batch`` would not divide among
+    them: the largest count up to ``n`` that divides it. Data-parallel training then
+    runs a device per core (``batch_parallel``). Only this process's JAX configuration
+    changes, not the environment; on a GPU the training devices are the GPUs and this
+    changes nothing. It must come before JAX's first computation: returns the count
+    set, or None where it left the devices as they are (one device asked for, or JAX
+    already started: said when ``n`` was given)."""
+    asked, n = n is not None, host_cores() if n is None else n
+    if n < 1:
+        raise ValueError(f"host devices: expected a positive count, got {n}")
+    if batch is not None:
+        n = max(d for d in range(1, n + 1) if batch % d == 0)
+    if n < 2:
+        return None
+    try:
+        jax.config.update("jax_num_cpu_devices", n)
+    except RuntimeError as e:  # the backends are up: their device count is fixed
+        if asked:
+            print(f"warning: {e}; keeping {len(jax.devices('cpu'))} CPU device(s)",
+                  file=sys.stderr)
+        return None
+    return n
 
 
 def is_main():
@@ -79,6 +113,42 @@ def _place(tree, mesh, axis):
         return jax.device_put(x, s)
 
     return jax.tree_util.tree_map(put, tree)
+
+
+def _specs(tree, axis, size):
+    """The ``PartitionSpec`` of each array of ``tree`` under ``_place``'s rule: split
+    along ``axis`` where it has that axis and ``size`` divides it, else replicated."""
+    def spec(x):
+        split = axis is not None and x.ndim > axis and x.shape[axis] % size == 0
+        return P(*([None] * axis), "data") if split else P()
+    return jax.tree_util.tree_map(spec, tree)
+
+
+def batch_parallel(fn, mesh, batch_axes, out_batch_axes):
+    """``fn`` run by each device of ``mesh`` on its part of the batch (``jax.shard_map``):
+    argument i is split along ``batch_axes[i]`` (None: replicated), output j comes back
+    split along ``out_batch_axes[j]``; outputs with None there are averaged over the
+    devices (``lax.pmean``: a loss and its gradients, which for a mean over the batch
+    equal the whole batch's). Unlike jit's automatic partitioning of the whole step,
+    nothing inside ``fn`` (a recurrent scan) talks to the other devices: XLA:CPU runs a
+    convolution on one thread, and a device per core is what runs a step's
+    convolutions on every core (docs/performance.md, "Training on several cores")."""
+    size = mesh.devices.size
+
+    def run(*args):
+        outs = jax.eval_shape(fn, *args)
+        in_specs = tuple(_specs(a, ax, size) for a, ax in zip(args, batch_axes))
+        out_specs = tuple(_specs(o, ax, size) for o, ax in zip(outs, out_batch_axes))
+
+        def local(*a):
+            res = fn(*a)
+            return tuple(jax.lax.pmean(r, "data") if ax is None else r
+                         for r, ax in zip(res, out_batch_axes))
+
+        return jax.shard_map(local, mesh=mesh, in_specs=in_specs, out_specs=out_specs,
+                             check_vma=False)(*args)
+
+    return run
 
 
 def to_host(tree):

@@ -64,7 +64,7 @@ def create_train_state(params, optimizer) -> TrainState:
 
 
 def make_train_step(model, loss_fn, optimizer, *, loss_frames, keep_at=None, remat=False,
-                    unroll=1, jit=True, hoist=False, late=None):
+                    unroll=1, jit=True, hoist=False, late=None, mesh=None):
     """``(train_state, carry, frames [T,B,...], targets [T,B,H,W,3]) ->
     (train_state, next carry, stats)``.
 
@@ -77,16 +77,29 @@ def make_train_step(model, loss_fn, optimizer, *, loss_frames, keep_at=None, rem
     the same values). Off by default: on XLA:CPU it measured no faster than scanning
     the plain step (0.96-1.06x, docs/performance.md, "Training speed"). ``late``:
     ``(index, loss)`` for the window's frames from ``index`` on (``rollout.window_loss``).
+
+    ``mesh`` (``sharding.data_mesh``): each device runs the window on its part of the
+    batch and the devices average their losses and gradients once per step
+    (``sharding.batch_parallel``), which equals the whole batch's mean for jtus's
+    losses (means over the batch of per-crop terms; ``tests/test_sharding.py``).
     """
     step, prepare = rollout.parts(model) if hoist else (model.step, None)
 
-    def train_step(ts: TrainState, carry: rollout.Carry, frames, targets):
+    def loss_and_grads(params, carry, frames, targets):
         def f(p):
             return rollout.window_loss(step, loss_fn, p, carry, frames, targets,
                                        loss_frames=loss_frames, keep_at=keep_at, remat=remat,
                                        unroll=unroll, prepare=prepare, late=late)
 
-        (loss, (last, kept)), grads = jax.value_and_grad(f, has_aux=True)(ts.params)
+        (loss, (last, kept)), grads = jax.value_and_grad(f, has_aux=True)(params)
+        return loss, last, kept, grads
+
+    if mesh is not None:
+        loss_and_grads = sharding.batch_parallel(loss_and_grads, mesh, batch_axes=(
+            None, 0, 1, 1), out_batch_axes=(None, 0, 0, None))
+
+    def train_step(ts: TrainState, carry: rollout.Carry, frames, targets):
+        loss, last, kept, grads = loss_and_grads(ts.params, carry, frames, targets)
         with jax.named_scope("optimizer"):
             updates, opt_state = optimizer.update(grads, ts.opt_state, ts.params)
             params = optax.apply_updates(ts.params, updates)
@@ -228,7 +241,7 @@ def _start(config, workdir, resume, overwrite, progress, force=False):
         plan, loss_fn = recipe.plan(c), recipe.loss_for(c)
         step_fn = make_train_step(model, loss_fn, opt, loss_frames=plan.loss_frames,
                                   keep_at=plan.keep_at, remat=config.remat,
-                                  hoist=config.hoist, late=recipe.late_loss_for(c))
+                                  hoist=config.hoist, late=recipe.late_loss_for(c), mesh=mesh)
         if mesh is None:  # one device: each step compiled once, its memory checked up front
             step_fn, memory = compile_step(c, model, step_fn, ts, plan)
             check_budget(memory, 4 * _nbytes(ts.params) + 2 ** 20, workdir, force,
@@ -448,6 +461,11 @@ def _parser():
     p.add_argument("--no-eval", action="store_true",
                    help="skip the final comparison with JAU, TUS and the shipped weights")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--host-devices", type=int, default=None, metavar="N",
+                   help="XLA CPU devices to split the batch over (default: one per core, "
+                        "as many as divide --batch; 1: one device). XLA:CPU runs a "
+                        "convolution on one thread, so one device leaves cores idle "
+                        "(docs/performance.md, 'Training on several cores')")
     for f in dataclasses.fields(Config):
         if f.name in ("model_overrides", "remat"):
             continue
@@ -523,10 +541,19 @@ def main(argv=None):
         print("error: --coordinator, --num-processes and --process-id go together, with "
               "--distributed", file=sys.stderr)
         return 2
-    if args.distributed:
-        sharding.initialize(args.coordinator, args.num_processes, args.process_id)
     try:
         config = config_from_args(args)
+        if args.host_devices is not None and args.host_devices < 1:
+            raise ValueError(f"--host-devices: expected a positive count, got "
+                             f"{args.host_devices}")
+        # a multi-process run keeps one device per process unless asked
+        host = None if args.distributed and args.host_devices is None else \
+            sharding.use_host_devices(args.host_devices, config.batch)
+        if host and not args.quiet:
+            print(f"training on {host} XLA CPU devices (one per core), the batch split "
+                  f"over them; --host-devices 1 for one", file=sys.stderr)
+        if args.distributed:
+            sharding.initialize(args.coordinator, args.num_processes, args.process_id)
         workdir = args.workdir or os.path.join("runs", f"{args.preset}-x{config.factor}")
         train_and_evaluate(config, workdir, resume=args.resume, progress=not args.quiet,
                            overwrite=args.overwrite, force=args.force)

@@ -24,6 +24,12 @@ for _name, _value in (("jax_compilation_cache_dir", _CACHE),
     jax.config.update(_name, _value)
     os.environ[_name.upper()] = str(_value)
 
+# Start JAX's backends now, on one CPU device: ``python -m jtus.train``'s main splits
+# XLA:CPU into a device per core only before JAX's first computation, and a test that
+# calls it in-process must not change the devices of the tests after it. Subprocess
+# tests run the CLI as users do; tests/test_sharding.py covers the split.
+jax.devices()
+
 
 @pytest.fixture
 def x64():

@@ -137,6 +137,23 @@ def test_train_refuses_loss_frames_that_tbptt_would_ignore(tiny_data, tmp_path, 
     assert train.config_from_argv(base + ["--loss-frames", "2"]).loss_frames == 2
 
 
+def test_host_devices_must_be_positive(tiny_data, tmp_path, capsys):
+    """``--host-devices`` below 1 is refused, naming the flag, before a workdir is made
+    or a step timed."""
+    from jtus import train
+    from jtus.bench import __main__ as bench_cli
+
+    work = tmp_path / "run"
+    _refused(capsys, train.main, ["--preset", "tiny", "--dataset", tiny_data, "--workdir",
+                                  str(work), "--quiet", "--host-devices", "0"],
+             "--host-devices", "positive")
+    assert not work.exists()
+    with pytest.raises(SystemExit) as e:
+        bench_cli.main(["--what", "train", "--host-devices", "-1"])
+    assert e.value.code == 2
+    assert "--host-devices" in capsys.readouterr().err
+
+
 def test_bench_refuses_its_out_path_before_timing(tmp_path, capsys):
     """``--out`` is checked before the minute of timing, not after it (a missing parent
     folder is created: the report is written atomically)."""

@@ -41,6 +41,11 @@ def _infer(report):
                     "apply (no network, no PyTorch reference).", ""]
 
 
+def _devices(n):
+    return (f"; the batch split over {n} XLA CPU devices (one per core)" if n > 1
+            else "; one XLA device")
+
+
 def _train(report):
     lines = ["| model | warp | kernels | s/step | frames/s | torch s/step | torch frames/s | "
              "torch/jtus | step memory (MiB) | x bound at conv peak |",
@@ -59,7 +64,8 @@ def _train(report):
     lines += ["", f"Training step: {r['factor']}x, crop {r['crop']}, batch {r['batch']}, "
               f"sequence {r['seq']}, loss on the last {r['loss_frames']}, Adam; {scan} scan, "
               f"{r['conv_backward']} conv backward{remat}"
-              f"{', preparation hoisted' if r.get('hoist') else ''}. Frames/s counts batch x "
+              f"{', preparation hoisted' if r.get('hoist') else ''}"
+              f"{_devices(r.get('devices', 1))}. Frames/s counts batch x "
               f"sequence per step; step memory is XLA's plan (temporaries, arguments, "
               f"outputs); the bound is 3x the forward FLOPs at the measured convolution "
               f"peak, which no implementation on this machine's convolutions beats."]

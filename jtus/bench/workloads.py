@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from jtus import cost, losses, models, rollout, train
+from jtus import cost, losses, models, rollout, sharding, train
 from jtus.frame import Frame
 from jtus.models import layers
 from jtus.timing import timeit, timeit_pair, timeit_round_robin
@@ -139,8 +139,9 @@ def random_window(factor, crop, batch, seq):
 
 def train_workload(factor, crop, batch, seq, loss_frames, remat=False, unroll=1,
                    conv_backward="custom", warp="bicubic", hoist=False, name="dlctus",
-                   kernels="auto", remat_edges=True):
-    """One BPTT training step of ``name`` (its own loss, Adam) on random data.
+                   kernels="auto", remat_edges=True, split=True):
+    """One BPTT training step of ``name`` (its own loss, Adam) on random data; with
+    ``split`` and several devices, the batch split over them as ``jtus.train`` does.
     ``conv_backward``, ``warp``, ``kernels`` and ``remat_edges`` apply to models whose
     config has them. Returns
     ``(run, hlo, model)``: ``run()`` takes one step and blocks; ``hlo()`` is the
@@ -153,13 +154,18 @@ def train_workload(factor, crop, batch, seq, loss_frames, remat=False, unroll=1,
     model = models.build(name, factor, **over)
     opt = optax.adam(1e-4)
     ts = [train.create_train_state(model.init(jax.random.PRNGKey(0)), opt)]
+    mesh = sharding.data_mesh(batch) if split else None
     step = train.make_train_step(model, losses.make(spec.loss, factor), opt,
                                  loss_frames=loss_frames, remat=remat, unroll=unroll,
-                                 hoist=hoist)
+                                 hoist=hoist, mesh=mesh)
     frames, targets = random_window(factor, crop, batch, seq)
+    if mesh is not None:
+        ts[0] = sharding.replicate(ts[0], mesh)
+        frames, targets = sharding.shard((frames, targets), mesh, axis=1)
 
     def carry():
-        return rollout.start(rollout.first_state(model, frames), targets[0])
+        c = rollout.start(rollout.first_state(model, frames), targets[0])
+        return c if mesh is None else sharding.shard(c, mesh, axis=0)
 
     def run():
         ts[0], _, stats = step(ts[0], carry(), frames, targets)
@@ -172,6 +178,7 @@ def train_workload(factor, crop, batch, seq, loss_frames, remat=False, unroll=1,
         return compiled().as_text()
 
     run.compiled = compiled  # for the memory the compiled step needs (bench_train)
+    run.devices = 1 if mesh is None else mesh.devices.size
     return run, hlo, model
 
 
@@ -190,7 +197,8 @@ def bench_train(factor, crop, batch, seq, loss_frames, repeats, remat=False, unr
            "loss_frames": loss_frames, "gflop_per_step": 3 * fwd / 1e9,
            "remat": remat, "unroll": bool(unroll is True), "conv_backward": conv_backward,
            "warp": getattr(model.config, "warp", "-"), "hoist": hoist,
-           "kernels": model.config.trunk_form() if hasattr(model.config, "trunk_form") else "-"}
+           "kernels": model.config.trunk_form() if hasattr(model.config, "trunk_form") else "-",
+           "devices": run.devices}
     try:  # what XLA plans for the step: temporaries plus arguments and outputs
         mem = run.compiled().memory_analysis()
         rec["peak_mib"] = (mem.temp_size_in_bytes + mem.argument_size_in_bytes

@@ -1,0 +1,140 @@
+"""The shipped recipe's training step on one XLA CPU device against the same step with
+its batch split over several (``jax_num_cpu_devices``, ``sharding.batch_parallel``; what
+``python -m jtus.train`` does by default), and PyTorch's step, all in one process,
+round-robin, so every variant sees the same machine (docs/performance.md, "Training on
+several cores").
+
+XLA fixes its devices when JAX starts, so the one-device step runs on the first of the
+process's devices (inference there measured the same as in a one-device process);
+each round is ``timing.timeit_round_robin`` of the three steps.
+
+    python experiments/host_devices.py --out docs/results/train-host-devices
+
+Writes ``result.json`` and ``result.md`` under ``--out``; also how busy the cores are
+(process CPU seconds per wall second) while each variant runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import torch
+
+from jtus import config as run_config
+from jtus import recipe, sharding, timing
+from jtus.bench import workloads
+from jtus.models import layers
+
+
+def cpu_per_wall(fn, repeats):
+    """Process CPU seconds per wall second over ``repeats`` calls of ``fn``."""
+    fn()
+    c0, t0 = os.times(), time.perf_counter()
+    for _ in range(repeats):
+        fn()
+    c1, t1 = os.times(), time.perf_counter()
+    return (c1.user - c0.user + c1.system - c0.system) / (t1 - t0)
+
+
+def op_threads(repeats=300):
+    """``{op: (ms, CPU/wall)}`` of one of the trunk's 3x3 32->32 convolutions at the
+    training shape (batch 4, 32x32 at H/4, edge-padded as DLCTUS's), a matmul of the
+    same FLOPs (the convolution's im2col product ``[4096, 288] @ [288, 32]``), and
+    PyTorch's convolution of the same shape: which of them XLA:CPU spreads over cores."""
+    rng = np.random.default_rng(0)
+    x = jnp.asarray(rng.uniform(size=(4, 32, 32, 32)), jnp.float32)
+    k = jnp.asarray(rng.uniform(-0.1, 0.1, size=(3, 3, 32, 32)), jnp.float32)
+    b = jnp.zeros((32,), jnp.float32)
+    a = jnp.asarray(rng.uniform(size=(4096, 288)), jnp.float32)
+    conv, dot = jax.jit(layers.conv_edge), jax.jit(jnp.matmul)
+    tx = torch.from_numpy(np.array(x)).permute(0, 3, 1, 2).contiguous()
+    tk = torch.from_numpy(np.array(k)).permute(3, 2, 0, 1).contiguous()
+
+    def torch_conv():
+        with torch.no_grad():
+            torch.nn.functional.conv2d(torch.nn.functional.pad(tx, (1, 1, 1, 1), "replicate"),
+                                       tk)
+
+    ops = {"XLA convolution": lambda: conv(x, k, b).block_until_ready(),
+           "XLA matmul, same FLOPs": lambda: dot(a, k.reshape(288, 32)).block_until_ready(),
+           "PyTorch convolution": torch_conv}
+    out = {}
+    for name, fn in ops.items():
+        t0 = time.perf_counter()
+        busy = cpu_per_wall(fn, repeats)
+        out[name] = ((time.perf_counter() - t0) / (repeats + 1) * 1e3, busy)
+    return out
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--devices", type=int, default=None,
+                   help="XLA CPU devices (default: one per core this process may use)")
+    p.add_argument("--preset", default="diverse", help="the jtus.train preset whose step is timed")
+    p.add_argument("--rounds", type=int, default=4)
+    p.add_argument("--repeats", type=int, default=9, help="steps per variant in each round")
+    p.add_argument("--out", default="docs/results/train-host-devices")
+    args = p.parse_args(argv)
+    n = sharding.use_host_devices(args.devices)  # before JAX's first computation
+
+    cfg = run_config.PRESETS[args.preset]
+    plan = recipe.plan(cfg)
+    w = (cfg.factor, cfg.crop, cfg.batch, plan.window, plan.loss_frames)
+    one = workloads.train_workload(*w, split=False)[0]
+    split = workloads.train_workload(*w)[0]
+    if split.devices < 2:
+        p.error(f"--devices: the step ran on one device ({n} asked, batch {cfg.batch})")
+    steps = {"one device": one, f"split over {split.devices}": split,
+             "torch": workloads.torch_reference("dlctus").train_workload(*w)}
+    rounds = []
+    for r in range(args.rounds):
+        t = timing.timeit_round_robin(steps, args.repeats)
+        rounds.append(t)
+        print(f"  round {r + 1}: " + ", ".join(f"{k} {v:.3f} s" for k, v in t.items()),
+              file=sys.stderr)
+    busy = {k: cpu_per_wall(f, 3) for k, f in steps.items()}
+    ops = op_threads()
+    names = list(steps)
+    med = {k: float(np.median([t[k] for t in rounds])) for k in names}
+    report = {"hardware": timing.hardware(), "devices": split.devices,
+              "command": "python experiments/host_devices.py " + shlex.join(
+                  argv if argv is not None else sys.argv[1:]),
+              "workload": dict(zip(("factor", "crop", "batch", "seq", "loss_frames"), w)),
+              "rounds": rounds, "median": med, "cpu_per_wall": busy, "ops": ops}
+    os.makedirs(args.out, exist_ok=True)
+    with open(os.path.join(args.out, "result.json"), "w") as f:
+        json.dump(report, f, indent=1)
+    md = [f"Command: `{report['command']}`", "",
+          f"Hardware: {timing.hardware_line(report['hardware'])}.", "",
+          f"DLCTUS {w[0]}x training step of the `{args.preset}` preset (crop {w[1]}, batch "
+          f"{w[2]}, {w[3]} frames, loss on the last {w[4]}, the model's loss, Adam), "
+          f"random data; seconds per step, medians of {args.repeats} round-robin repeats "
+          f"per round; CPU/wall: process CPU seconds per wall second while the step ran.",
+          "", "| round | " + " | ".join(names) + " | one / split | torch / one | torch / split |",
+          "| --- " * (len(names) + 4) + "|"]
+    for i, t in enumerate(rounds + [med]):
+        label = str(i + 1) if i < len(rounds) else "median"
+        vals = [t[k] for k in names]
+        md.append(f"| {label} | " + " | ".join(f"{v:.3f}" for v in vals)
+                  + f" | {vals[0] / vals[1]:.2f} | {vals[2] / vals[0]:.2f} | "
+                  f"{vals[2] / vals[1]:.2f} |")
+    md.append("| CPU/wall | " + " | ".join(f"{busy[k]:.2f}" for k in names) + " | | | |")
+    md += ["", "One operation of the step at a time (the first of the process's devices; "
+           "ms per call including dispatch):", "", "| operation | ms | CPU/wall |",
+           "| --- | --- | --- |"]
+    md += [f"| {name} | {ms:.3f} | {busy_:.2f} |" for name, (ms, busy_) in ops.items()]
+    with open(os.path.join(args.out, "result.md"), "w") as f:
+        f.write("\n".join(md) + "\n")
+    print("\n".join(md))
+
+
+if __name__ == "__main__":
+    main()
