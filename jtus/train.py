@@ -63,6 +63,21 @@ def create_train_state(params, optimizer) -> TrainState:
     return TrainState(jnp.zeros((), jnp.int32), params, optimizer.init(params))
 
 
+SPLIT_MIN_CROP = 128  # the smallest training crop the batch is split over CPU devices at
+
+
+def host_devices_for(crop, asked=None):
+    """The XLA CPU devices a training step of ``crop``-pixel crops splits its batch over
+    (``sharding.use_host_devices``'s ``n``; None: one per core): ``asked`` when given,
+    else one per core from crops of ``SPLIT_MIN_CROP`` on and one device below. The
+    `diverse` step (crop 128) measured 1.12x faster split over two cores, the `default`
+    one (crop 64) 0.96x: its convolutions are too small to gain from a core each
+    (docs/performance.md, "Training on several cores")."""
+    if asked is not None:
+        return asked
+    return None if crop >= SPLIT_MIN_CROP else 1
+
+
 def make_train_step(model, loss_fn, optimizer, *, loss_frames, keep_at=None, remat=False,
                     unroll=1, jit=True, hoist=False, late=None, mesh=None):
     """``(train_state, carry, frames [T,B,...], targets [T,B,H,W,3]) ->
@@ -407,7 +422,8 @@ def train_and_evaluate(config: Config, workdir, resume=False, progress=True, sto
             ts, stats = _train_epoch(run, ts, data, epoch, progress)
             rec = {"epoch": epoch, "step": int(sharding.to_host(ts.step)),
                    **_epoch_stats(stats, workdir, epoch)}
-            params = sharding.to_host(ts.params) if jax.process_count() > 1 else ts.params
+            # validation runs on one device: replicated parameters would run it on each
+            params = ts.params if run.mesh is None else sharding.to_host(ts.params)
             rec.update(_validate(run, params, ds, val_crops))
             rec["seconds"] = time.perf_counter() - t0
             history.append(rec)
@@ -462,10 +478,11 @@ def _parser():
                    help="skip the final comparison with JAU, TUS and the shipped weights")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--host-devices", type=int, default=None, metavar="N",
-                   help="XLA CPU devices to split the batch over (default: one per core, "
-                        "as many as divide --batch; 1: one device). XLA:CPU runs a "
-                        "convolution on one thread, so one device leaves cores idle "
-                        "(docs/performance.md, 'Training on several cores')")
+                   help="XLA CPU devices to split the batch over (default: from crop 128 "
+                        "on, one per core, as many as divide --batch; below, one; 1: one "
+                        "device). XLA:CPU runs a convolution on one thread, so one device "
+                        "leaves cores idle (docs/performance.md, 'Training on several "
+                        "cores')")
     for f in dataclasses.fields(Config):
         if f.name in ("model_overrides", "remat"):
             continue
@@ -548,7 +565,8 @@ def main(argv=None):
                              f"{args.host_devices}")
         # a multi-process run keeps one device per process unless asked
         host = None if args.distributed and args.host_devices is None else \
-            sharding.use_host_devices(args.host_devices, config.batch)
+            sharding.use_host_devices(host_devices_for(config.crop, args.host_devices),
+                                      config.batch)
         if host and not args.quiet:
             print(f"training on {host} XLA CPU devices (one per core), the batch split "
                   f"over them; --host-devices 1 for one", file=sys.stderr)

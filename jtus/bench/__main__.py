@@ -21,7 +21,7 @@ import json
 import os
 import sys
 
-from jtus import cli, files, models, recipe, sampling, sharding
+from jtus import cli, files, models, recipe, sampling, sharding, train
 from jtus import config as run_config
 from jtus.bench.report import markdown
 from jtus.bench.workloads import SIZES, bench_infer, bench_train, peaks
@@ -141,8 +141,9 @@ def _parser():
                         "replace the --train-* values")
     t.add_argument("--host-devices", type=int, default=None, metavar="N",
                    help="XLA CPU devices the training step splits its batch over, as "
-                        "python -m jtus.train does (default: one per core, as many as "
-                        "divide the batch; 1: one device). Inference runs on one")
+                        "python -m jtus.train does (default: from crop 128 on, one per "
+                        "core, as many as divide the batch; 1: one device). Inference "
+                        "runs on one")
     p.add_argument("--torch", action=argparse.BooleanOptionalAction, default=True,
                    help="also time the PyTorch references")
     p.add_argument("--json", action="store_true")
@@ -178,7 +179,8 @@ def main(argv=None):
     if args.host_devices is not None and args.host_devices < 1:
         p.error(f"--host-devices: expected a positive count, got {args.host_devices}")
     if "train" in args.what:
-        sharding.use_host_devices(args.host_devices, args.train_batch)
+        sharding.use_host_devices(train.host_devices_for(args.train_crop, args.host_devices),
+                                  args.train_batch)
     report = run(args, (lambda r: _write(r, args.out)) if args.out else (lambda r: None))
     print(json.dumps(report, indent=1) if args.json else markdown(report))
     return 0
