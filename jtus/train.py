@@ -275,8 +275,10 @@ def _start(config, workdir, resume, overwrite, progress, force=False):
         _write_config(workdir, config)
     if mesh is not None:  # batch split over the devices, parameters replicated
         ts = sharding.replicate(ts, mesh)
+    # the validation loss is the run's own objective, the late weight included
     eval_loss = jax.jit(lambda p, c, f, t: rollout.window_loss(
-        model.step, srcs[0].loss_fn, p, c, f, t, loss_frames=srcs[0].plan.loss_frames)[0])
+        model.step, srcs[0].loss_fn, p, c, f, t, loss_frames=srcs[0].plan.loss_frames,
+        late=recipe.late_loss_for(srcs[0].config))[0])
     run = _Run(config, model, srcs, eval_loss, mesh, recipe.accept_for(config), replacing)
     return run, ts, start_epoch, history
 

@@ -374,8 +374,16 @@ def test_temporal_from_weighs_the_temporal_term_from_a_frame_on(tiny_data, tmp_p
         return real(*a, late=late, **kw)
 
     monkeypatch.setattr(train, "make_train_step", spy)
+    scored, real_window_loss = [], rollout.window_loss
+
+    def window_spy(*a, late=None, **kw):  # the training step's and the validation's
+        scored.append(None if late is None else late[0])
+        return real_window_loss(*a, late=late, **kw)
+
+    monkeypatch.setattr(rollout, "window_loss", window_spy)
     _, hist = train.train_and_evaluate(config, tmp_path / "run", progress=False)
     assert built == [2] and np.isfinite(hist[0]["train_loss"])
+    assert len(scored) >= 2 and set(scored) == {2}, scored
     for kw, msg in (({"temporal_from": -1}, "temporal_from: expected an integer >= 0"),
                     ({"loss": "l1", "temporal_weight": 1.0}, "temporal_from: 2 moves"),
                     ({"temporal_weight": 1.0}, "temporal_from: 2 moves"),
