@@ -1,7 +1,7 @@
-"""Shared test helpers: small synthetic sequences (smooth images, sub-pixel motion,
-jitter from the thesis patterns; not a renderer, just well-conditioned inputs),
-time-step selection, TBPTT gradients window by window, and experiment scripts loaded
-as modules."""
+"""Shared test helpers: frames with given motion, small synthetic sequences (smooth
+images, sub-pixel motion, jitter from the thesis patterns; not a renderer, just
+well-conditioned inputs), time-step selection, TBPTT gradients window by window, and
+experiment scripts loaded as modules."""
 
 import importlib.util
 import os
@@ -14,6 +14,14 @@ import numpy as np
 from jtus import rollout
 from jtus.frame import Frame
 from jtus.sampling import jitter_sequence
+
+
+def frame_with_motion(motion):
+    """A ``Frame`` of black colour and depth with LR ``motion [B,h,w,2]`` and centred
+    jitter: what the temporal losses read of a frame (its motion)."""
+    b, h, w, _ = motion.shape
+    return Frame(jnp.zeros((b, h, w, 3)), jnp.zeros((b, h, w, 1)), jnp.asarray(motion),
+                 jnp.full((b, 2), 0.5))
 
 
 def _smooth(rng, shape, lo=0.0, hi=1.0, k=3):

@@ -9,12 +9,7 @@ import pytest
 
 from jtus import losses
 from jtus.frame import Frame
-
-
-def _frame(motion):
-    b, h, w, _ = motion.shape
-    return Frame(jnp.zeros((b, h, w, 3)), jnp.zeros((b, h, w, 1)), jnp.asarray(motion),
-                 jnp.full((b, 2), 0.5))
+from tests import seqdata
 
 
 def _case(rng, factor=2, h=4, w=5, motion=None):
@@ -22,7 +17,7 @@ def _case(rng, factor=2, h=4, w=5, motion=None):
     out, target, prev_out, prev_target = (jnp.asarray(rng.uniform(size=shape), jnp.float32)
                                           for _ in range(4))
     mv = np.zeros((1, h, w, 2), np.float32) if motion is None else motion
-    return out, target, prev_out, prev_target, _frame(mv)
+    return out, target, prev_out, prev_target, seqdata.frame_with_motion(mv)
 
 
 def test_st_linear_endpoints(rng):
@@ -47,9 +42,9 @@ def test_st_linear_hand_computed(xv, yv, theta, expect):
     out = target + xv
     prev_target = jnp.full(shape, 0.25)
     prev_out = prev_target + yv
+    still = seqdata.frame_with_motion(np.zeros((1, 2, 2, 2), np.float32))
     loss = losses.make("st-linear", 2, theta=theta)(out, target, prev_out, prev_target,
-                                                     jnp.asarray(True),
-                                                     _frame(np.zeros((1, 2, 2, 2), np.float32)))
+                                                     jnp.asarray(True), still)
     np.testing.assert_allclose(loss, expect, rtol=1e-5)
 
 
@@ -75,7 +70,7 @@ def test_log_salvi_is_the_batch_mean_of_log_salvi_per_crop(rng):
     target, prev_target = (rng.uniform(size=shape) * np.array([1.0, 0.02])[:, None, None, None]
                            for _ in range(2))
     x, y = (rng.normal(size=shape) * 0.01 for _ in range(2))
-    frame = _frame(np.zeros((2, 4, 5, 2), np.float32))
+    frame = seqdata.frame_with_motion(np.zeros((2, 4, 5, 2), np.float32))
     loss = losses.make("log-salvi", 2)
     f32 = functools.partial(jnp.asarray, dtype=jnp.float32)
 

@@ -13,7 +13,6 @@ import pytest
 
 from jtus import evaluate, loading, losses, rollout, train, upsample
 from jtus.config import PRESETS
-from jtus.frame import Frame
 from jtus.files import UnknownKeyWarning
 from jtus.models import dlctus
 from tests import seqdata
@@ -355,9 +354,8 @@ def test_temporal_from_weighs_the_temporal_term_from_a_frame_on(tiny_data, tmp_p
                      temporal_weight=3.0, temporal_from=2)
     rng = np.random.default_rng(0)
     args = [jnp.asarray(rng.uniform(size=(2, 8, 8, 3)), jnp.float32) for _ in range(4)]
-    motion = jnp.zeros((2, 2, 2, 2))  # LR motion of a still 8x8 frame at 4x
-    args += [jnp.asarray(True), Frame(jnp.zeros((2, 2, 2, 3)), jnp.zeros((2, 2, 2, 1)), motion,
-                                      jnp.full((2, 2), 0.5))]
+    # LR motion of a still 8x8 frame at 4x
+    args += [jnp.asarray(True), seqdata.frame_with_motion(jnp.zeros((2, 2, 2, 2)))]
     k, late = recipe.late_loss_for(config)
     assert k == 2
     np.testing.assert_allclose(late(*args), losses.make("log-salvi", 4, temporal_weight=3.0)(
