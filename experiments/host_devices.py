@@ -9,6 +9,7 @@ process's devices (inference there measured the same as in a one-device process)
 each round is ``timing.timeit_round_robin`` of the three steps.
 
     python experiments/host_devices.py --out docs/results/train-host-devices
+    python experiments/host_devices.py --what inference   # the trunk of one frame, rows split
 
 Writes ``result.json`` and ``result.md`` under ``--out``; also how busy the cores are
 (process CPU seconds per wall second) while each variant runs.
@@ -27,11 +28,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import torch
+from jax.sharding import Mesh
+from jax.sharding import PartitionSpec as P
 
 from jtus import config as run_config
 from jtus import recipe, sharding, timing
 from jtus.bench import workloads
-from jtus.models import layers
+from jtus.models import dlctus, kernels, layers
 
 
 def cpu_per_wall(fn, repeats):
@@ -74,6 +77,71 @@ def op_threads(repeats=300):
     return out
 
 
+HALO = 8  # the trunk's eight 3x3 convolutions reach 8 rows across a cut
+
+
+def trunk_rows_split(size, repeats=5, rounds=3):
+    """DLCTUS's trunk (the network's 95% of FLOPs) at the H/4 x W/4 of an HR ``size``,
+    batch 1, on one device against the same with its rows cut between the devices, each
+    computing its rows plus ``HALO`` on either side (edge-padded at the image's own
+    edges, so the values are equal): ``(max |difference|, [(one ms, split ms)] per
+    round)``. What splitting an inference frame over the devices could gain."""
+    config = dlctus.Config(factor=2)
+    params = dlctus.init(jax.random.PRNGKey(0), config)
+    rows, cols = size[0] // 4, size[1] // 4
+    h = jnp.asarray(np.random.default_rng(0).uniform(size=(1, rows, cols, 32)), jnp.float32)
+    n = len(jax.devices())
+    per = -(-rows // n)
+    size_with_halo = min(per + 2 * HALO, rows)
+
+    def local(p, x):
+        start = jax.lax.axis_index("rows") * per
+        lo = jnp.clip(start - HALO, 0, rows - size_with_halo)
+        part = jax.lax.dynamic_slice_in_dim(x, lo, size_with_halo, axis=1)
+        out = kernels.trunk(p, part, config.blocks, "xla")
+        return jax.lax.dynamic_slice_in_dim(out, start - lo, per, axis=1)
+
+    mesh = Mesh(np.array(jax.devices()), ("rows",))
+    one = jax.jit(lambda p, x: kernels.trunk(p, x, config.blocks, "xla"))
+    split = jax.jit(jax.shard_map(local, mesh=mesh, in_specs=(P(), P()),
+                                  out_specs=P(None, "rows"), check_vma=False))
+    diff = float(jnp.max(jnp.abs(one(params, h) - np.asarray(split(params, h))[:, :rows])))
+    times = []
+    for _ in range(rounds):
+        t = timing.timeit_round_robin({"one": lambda: one(params, h).block_until_ready(),
+                                       "split": lambda: split(params, h).block_until_ready()},
+                                      repeats)
+        times.append((t["one"] * 1e3, t["split"] * 1e3))
+    return diff, times
+
+
+def inference_report(args, argv):
+    """``--what inference``: ``trunk_rows_split`` at 720p and 1080p, to ``--out``."""
+    sizes = {"720p": (720, 1280), "1080p": (1080, 1920)}
+    res = {name: trunk_rows_split(size, args.repeats, args.rounds) for name, size in sizes.items()}
+    report = {"hardware": timing.hardware(), "devices": len(jax.devices()),
+              "command": "python experiments/host_devices.py " + shlex.join(
+                  argv if argv is not None else sys.argv[1:]),
+              "trunk": {k: {"max_abs_diff": d, "ms_one_split": t} for k, (d, t) in res.items()}}
+    os.makedirs(args.out, exist_ok=True)
+    with open(os.path.join(args.out, "result.json"), "w") as f:
+        json.dump(report, f, indent=1)
+    md = [f"Command: `{report['command']}`", "",
+          f"Hardware: {timing.hardware_line(report['hardware'])}.", "",
+          f"DLCTUS's trunk (four residual blocks, eight 3x3 32->32 convolutions at H/4 x W/4) "
+          f"on one frame, on one XLA CPU device against its rows cut between "
+          f"{report['devices']} devices (each with {HALO} rows of halo; the same values); ms, "
+          f"medians of {args.repeats} round-robin repeats per round.", "",
+          "| size | round | one device | split | one / split | max abs difference |",
+          "| --- | --- | --- | --- | --- | --- |"]
+    for name, (d, times) in res.items():
+        md += [f"| {name} | {i + 1} | {a:.1f} | {b:.1f} | {a / b:.2f} | {d:.1e} |"
+               for i, (a, b) in enumerate(times)]
+    with open(os.path.join(args.out, "result.md"), "w") as f:
+        f.write("\n".join(md) + "\n")
+    print("\n".join(md))
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--devices", type=int, default=None,
@@ -81,9 +149,16 @@ def main(argv=None):
     p.add_argument("--preset", default="diverse", help="the jtus.train preset whose step is timed")
     p.add_argument("--rounds", type=int, default=4)
     p.add_argument("--repeats", type=int, default=9, help="steps per variant in each round")
-    p.add_argument("--out", default="docs/results/train-host-devices")
+    p.add_argument("--what", choices=("train", "inference"), default="train",
+                   help="inference: DLCTUS's trunk on one frame, its rows split over the "
+                        "devices (trunk_rows_split), instead of the training step")
+    p.add_argument("--out", default=None, help="default: docs/results/train-host-devices, "
+                                               "or inference-host-devices with --what inference")
     args = p.parse_args(argv)
+    args.out = args.out or f"docs/results/{args.what}-host-devices"
     n = sharding.use_host_devices(args.devices)  # before JAX's first computation
+    if args.what == "inference":
+        return inference_report(args, argv)
 
     cfg = run_config.PRESETS[args.preset]
     plan = recipe.plan(cfg)
