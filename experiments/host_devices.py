@@ -38,13 +38,14 @@ from jtus.models import dlctus, kernels, layers
 
 
 def cpu_per_wall(fn, repeats):
-    """Process CPU seconds per wall second over ``repeats`` calls of ``fn``."""
+    """``(wall seconds per call, process CPU seconds per wall second)`` over ``repeats``
+    calls of ``fn`` after one warm-up call (its compile not counted)."""
     fn()
     c0, t0 = os.times(), time.perf_counter()
     for _ in range(repeats):
         fn()
     c1, t1 = os.times(), time.perf_counter()
-    return (c1.user - c0.user + c1.system - c0.system) / (t1 - t0)
+    return (t1 - t0) / repeats, (c1.user - c0.user + c1.system - c0.system) / (t1 - t0)
 
 
 def op_threads(repeats=300):
@@ -66,14 +67,14 @@ def op_threads(repeats=300):
             torch.nn.functional.conv2d(torch.nn.functional.pad(tx, (1, 1, 1, 1), "replicate"),
                                        tk)
 
+    k2 = k.reshape(288, 32)
     ops = {"XLA convolution": lambda: conv(x, k, b).block_until_ready(),
-           "XLA matmul, same FLOPs": lambda: dot(a, k.reshape(288, 32)).block_until_ready(),
+           "XLA matmul, same FLOPs": lambda: dot(a, k2).block_until_ready(),
            "PyTorch convolution": torch_conv}
     out = {}
     for name, fn in ops.items():
-        t0 = time.perf_counter()
-        busy = cpu_per_wall(fn, repeats)
-        out[name] = ((time.perf_counter() - t0) / (repeats + 1) * 1e3, busy)
+        seconds, busy = cpu_per_wall(fn, repeats)
+        out[name] = (seconds * 1e3, busy)
     return out
 
 
@@ -115,20 +116,32 @@ def trunk_rows_split(size, repeats=5, rounds=3):
     return diff, times
 
 
+def _report(argv, **fields):
+    """The report's hardware and command, then ``fields``."""
+    return {"hardware": timing.hardware(), "command": "python experiments/host_devices.py "
+            + shlex.join(argv if argv is not None else sys.argv[1:]), **fields}
+
+
+def _write(out, report, lines):
+    """``result.json`` and ``result.md`` (the command and hardware, then ``lines``) under
+    ``out``; the Markdown printed."""
+    os.makedirs(out, exist_ok=True)
+    with open(os.path.join(out, "result.json"), "w") as f:
+        json.dump(report, f, indent=1)
+    md = [f"Command: `{report['command']}`", "",
+          f"Hardware: {timing.hardware_line(report['hardware'])}.", ""] + lines
+    with open(os.path.join(out, "result.md"), "w") as f:
+        f.write("\n".join(md) + "\n")
+    print("\n".join(md))
+
+
 def inference_report(args, argv):
     """``--what inference``: ``trunk_rows_split`` at 720p and 1080p, to ``--out``."""
     sizes = {"720p": (720, 1280), "1080p": (1080, 1920)}
     res = {name: trunk_rows_split(size, args.repeats, args.rounds) for name, size in sizes.items()}
-    report = {"hardware": timing.hardware(), "devices": len(jax.devices()),
-              "command": "python experiments/host_devices.py " + shlex.join(
-                  argv if argv is not None else sys.argv[1:]),
-              "trunk": {k: {"max_abs_diff": d, "ms_one_split": t} for k, (d, t) in res.items()}}
-    os.makedirs(args.out, exist_ok=True)
-    with open(os.path.join(args.out, "result.json"), "w") as f:
-        json.dump(report, f, indent=1)
-    md = [f"Command: `{report['command']}`", "",
-          f"Hardware: {timing.hardware_line(report['hardware'])}.", "",
-          f"DLCTUS's trunk (four residual blocks, eight 3x3 32->32 convolutions at H/4 x W/4) "
+    report = _report(argv, devices=len(jax.devices()), trunk={
+        k: {"max_abs_diff": d, "ms_one_split": t} for k, (d, t) in res.items()})
+    md = [f"DLCTUS's trunk (four residual blocks, eight 3x3 32->32 convolutions at H/4 x W/4) "
           f"on one frame, on one XLA CPU device against its rows cut between "
           f"{report['devices']} devices (each with {HALO} rows of halo; the same values); ms, "
           f"medians of {args.repeats} round-robin repeats per round.", "",
@@ -137,9 +150,7 @@ def inference_report(args, argv):
     for name, (d, times) in res.items():
         md += [f"| {name} | {i + 1} | {a:.1f} | {b:.1f} | {a / b:.2f} | {d:.1e} |"
                for i, (a, b) in enumerate(times)]
-    with open(os.path.join(args.out, "result.md"), "w") as f:
-        f.write("\n".join(md) + "\n")
-    print("\n".join(md))
+    _write(args.out, report, md)
 
 
 def main(argv=None):
@@ -175,21 +186,14 @@ def main(argv=None):
         rounds.append(t)
         print(f"  round {r + 1}: " + ", ".join(f"{k} {v:.3f} s" for k, v in t.items()),
               file=sys.stderr)
-    busy = {k: cpu_per_wall(f, 3) for k, f in steps.items()}
+    busy = {k: cpu_per_wall(f, 3)[1] for k, f in steps.items()}
     ops = op_threads()
     names = list(steps)
     med = {k: float(np.median([t[k] for t in rounds])) for k in names}
-    report = {"hardware": timing.hardware(), "devices": split.devices,
-              "command": "python experiments/host_devices.py " + shlex.join(
-                  argv if argv is not None else sys.argv[1:]),
-              "workload": dict(zip(("factor", "crop", "batch", "seq", "loss_frames"), w)),
-              "rounds": rounds, "median": med, "cpu_per_wall": busy, "ops": ops}
-    os.makedirs(args.out, exist_ok=True)
-    with open(os.path.join(args.out, "result.json"), "w") as f:
-        json.dump(report, f, indent=1)
-    md = [f"Command: `{report['command']}`", "",
-          f"Hardware: {timing.hardware_line(report['hardware'])}.", "",
-          f"DLCTUS {w[0]}x training step of the `{args.preset}` preset (crop {w[1]}, batch "
+    report = _report(argv, devices=split.devices, workload=dict(zip(
+        ("factor", "crop", "batch", "seq", "loss_frames"), w)), rounds=rounds, median=med,
+        cpu_per_wall=busy, ops=ops)
+    md = [f"DLCTUS {w[0]}x training step of the `{args.preset}` preset (crop {w[1]}, batch "
           f"{w[2]}, {w[3]} frames, loss on the last {w[4]}, the model's loss, Adam), "
           f"random data; seconds per step, medians of {args.repeats} round-robin repeats "
           f"per round; CPU/wall: process CPU seconds per wall second while the step ran.",
@@ -203,12 +207,10 @@ def main(argv=None):
                   f"{vals[2] / vals[1]:.2f} |")
     md.append("| CPU/wall | " + " | ".join(f"{busy[k]:.2f}" for k in names) + " | | | |")
     md += ["", "One operation of the step at a time (the first of the process's devices; "
-           "ms per call including dispatch):", "", "| operation | ms | CPU/wall |",
-           "| --- | --- | --- |"]
+           "ms per call after a warm-up call, dispatch included):", "",
+           "| operation | ms | CPU/wall |", "| --- | --- | --- |"]
     md += [f"| {name} | {ms:.3f} | {busy_:.2f} |" for name, (ms, busy_) in ops.items()]
-    with open(os.path.join(args.out, "result.md"), "w") as f:
-        f.write("\n".join(md) + "\n")
-    print("\n".join(md))
+    _write(args.out, report, md)
 
 
 if __name__ == "__main__":
