@@ -7,6 +7,7 @@ import signal
 import sys
 import warnings
 
+from jtus import hostmem
 from jtus.files import UnknownKeyWarning
 
 
@@ -45,7 +46,9 @@ def run(main):
     After a SIGTERM has unwound (its files cleaned up), the process ends at once with
     status 143. A normal interpreter shutdown there can crash (SIGSEGV, measured on
     about half of the SIGTERMs during ``data generate``) while XLA's threads still run
-    the interrupted computation."""
+    the interrupted computation. First it keeps freed memory in the process
+    (``hostmem.keep_freed_memory``: no page faults for buffers each step maps anew)."""
+    hostmem.keep_freed_memory()
     shown, warnings.showwarning = warnings.showwarning, _show_warning
     try:
         code = main()

@@ -7,6 +7,12 @@ import jax
 import numpy as np
 import pytest
 
+from jtus import hostmem
+
+# Test processes keep freed memory as every jtus tool does (``cli.run``), before JAX
+# starts its threads: the tools' allocator, without fresh pages faulted in each step.
+hostmem.keep_freed_memory()
+
 # One persistent compilation cache per test session, shared with the CLI subprocesses
 # the tests start: many tests compile the same programs (a train step, the metrics of
 # a video) in fresh jit objects, and a cache hit skips XLA's compile (the resume test

@@ -5,7 +5,7 @@ import os
 
 import pytest
 
-from jtus import bench, cost, models
+from jtus import bench, cost, hostmem, models
 from jtus.bench import __main__ as bench_cli
 
 
@@ -23,6 +23,7 @@ def test_bench_smoke(capsys, tmp_path):
     assert md == bench.markdown(report) + "\n" and "| dlctus | 64x64 | 4x |" in md
     assert sorted(os.listdir(tmp_path / "new")) == ["bench.json", "bench.md"]
     assert report["hardware"]["cores"] >= 1
+    assert report["host_memory"] == hostmem.state() and "Host memory: " in md
     assert {r["model"] for r in report["infer"]} == {"dlctus", "jau", "tus", "kpn"}
     by = {r["model"]: r for r in report["infer"]}
     assert by["dlctus"]["ms"] > 0 and by["dlctus"]["network_ms"] > 0

@@ -21,7 +21,7 @@ import json
 import os
 import sys
 
-from jtus import cli, files, models, recipe, sampling, sharding, train
+from jtus import cli, files, hostmem, models, recipe, sampling, sharding, train
 from jtus import config as run_config
 from jtus.bench.report import markdown
 from jtus.bench.workloads import SIZES, bench_infer, bench_train, peaks
@@ -72,7 +72,8 @@ def _train_rows(args, peak, rows, saved):
 def run(args, save=lambda report: None):
     """The report; ``save(report)`` is called after each measurement with what has been
     measured so far (an interrupted run keeps its rows)."""
-    report = {"hardware": hardware(), "command": "python -m jtus.bench " + " ".join(args.argv)}
+    report = {"hardware": hardware(), "command": "python -m jtus.bench " + " ".join(args.argv),
+              "host_memory": hostmem.state()}
     saved = lambda: save(report)  # noqa: E731
     if "peak" in args.what:
         report["peak"] = peaks(args.repeats)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from jtus import hostmem
+
 NONE = "–"  # a cell that does not apply (no network, no reference)
 
 
@@ -76,6 +78,9 @@ def markdown(report):
     hw = report["hardware"]
     lines = [f"Hardware: {hw['cpu']}, {hw['cores']} cores, JAX {hw['jax']} on {hw['backend']}.",
              f"Command: `{report['command']}`", ""]
+    if "host_memory" in report:
+        lines[1:1] = [f"Host memory: {hostmem.describe(report['host_memory'])}; the PyTorch "
+                      f"references, timed in the same process, share it."]
     if "peak" in report:
         lines += _peak(report)
     if "infer" in report:

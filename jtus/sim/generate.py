@@ -23,6 +23,7 @@ import h5py
 import numpy as np
 from tqdm import tqdm
 
+from jtus import hostmem
 from jtus.data.dataset import SPLITS, write_root_attrs, write_video
 from jtus.files import atomic_path
 from jtus.sampling.jitter import VARIETY
@@ -330,4 +331,5 @@ def ensure_dataset(path, preset_name, progress=True, workers=None):
 
 
 if __name__ == "__main__":
+    hostmem.keep_freed_memory()
     _worker(sys.argv[1])
