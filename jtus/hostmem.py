@@ -6,8 +6,8 @@ XLA:CPU allocates each execution's buffers (temporaries, outputs) with the C lib
 mmap threshold (128 KiB, adapting up to 32 MiB) with a fresh ``mmap`` and unmaps it on
 ``free``, so every training step, frame or rendered tile maps its large buffers anew
 and the kernel zeroes each 4 KiB page on its first touch (a minor page fault). On the
-2-core AMD EPYC the split ``diverse`` training step took 28,000 such faults (111 MiB) and
-66 ms of kernel time per step (``python experiments/host_memory.py``,
+2-core AMD EPYC the split ``diverse`` training step took 28,550 such faults (111 MiB) and
+64.5 ms of kernel time per step (``python experiments/host_memory.py``,
 ``docs/performance.md``, "Host memory").
 
 ``keep_freed_memory`` tells glibc, for this process only, to serve every request from
