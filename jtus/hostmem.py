@@ -17,8 +17,9 @@ process holds its high-water mark until it exits. One case stays mapped: a reque
 64 MiB from a thread other than the main one, which its arena (a heap of at most 64 MiB)
 cannot hold and glibc maps whatever the settings (XLA's 1080p frames). One arena for
 every thread (``M_ARENA_MAX`` 1) would hold those too, but the training step's threads
-then contend for it and lost most of the gain (measured). Every ``python -m jtus.<tool>`` calls it
-first (``cli.run``); library callers may call it themselves. It changes no value, only
+then contend for it and lost the gain (``docs/results/host-memory-one-arena/``). Every
+``python -m jtus.<tool>`` calls it first (``cli.run``); library callers may call it
+themselves. It changes no value, only
 where buffers come from. Where the environment already sets glibc's allocator
 (``GLIBC_TUNABLES`` with a ``glibc.malloc.`` tunable, or a ``MALLOC_*_`` variable),
 the user's choice stands and nothing is changed.
@@ -27,7 +28,6 @@ the user's choice stands and nothing is changed.
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import os
 import platform
 
@@ -60,7 +60,7 @@ def keep_freed_memory():
     elif platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
         state = "unavailable"
     else:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        libc = ctypes.CDLL(None)  # the process's own symbols: glibc's mallopt among them
         ok = all(libc.mallopt(k, v) == 1 for k, v in ((M_MMAP_MAX, 0),
                                                       (M_TRIM_THRESHOLD, TRIM_THRESHOLD)))
         state = "kept" if ok else "unavailable"

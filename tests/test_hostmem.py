@@ -19,11 +19,11 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # holds at most 64 MiB); glibc maps either on its own by default (above 32 MiB). The
 # minor page faults of the last five rounds of each. (NumPy would ask for huge pages.)
 REUSE = """
-import ctypes, ctypes.util, resource, sys, threading
+import ctypes, resource, sys, threading
 from jtus import hostmem
 if sys.argv[1] == "keep":
     assert hostmem.keep_freed_memory() == "kept"
-libc = ctypes.CDLL(ctypes.util.find_library("c"))
+libc = ctypes.CDLL(None)
 libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
 libc.free.argtypes = [ctypes.c_void_p]
 faults = []
