@@ -19,6 +19,7 @@ video's frames at both factors and the target). Writes ``result.md`` and
 from __future__ import annotations
 
 import argparse
+import ctypes
 import json
 import os
 import resource
@@ -30,8 +31,15 @@ import numpy as np
 
 from common import ROOT, out_dir, write
 
+from jtus import config, hostmem, recipe, sharding, train
+from jtus.bench import workloads
+from jtus.sim.generate import preset
+from jtus.sim.suite import get as get_scene
+from jtus.sim.video import VideoRenderer
+
 WHATS = ("train", "infer-720p", "infer-1080p", "render")
 SIZES = {"infer-720p": (720, 1280), "infer-1080p": (1080, 1920)}
+M_ARENA_MAX = -8  # glibc's mallopt parameter (malloc.h)
 
 
 def rss_mib():
@@ -66,25 +74,19 @@ def timed_calls(fns, calls):
 def workload(what):
     """``{name: blocking call}`` of one workload (jtus's, and PyTorch's where it has a
     reference)."""
-    from jtus import config, recipe, sharding, train
     if what == "train":
         cfg = config.PRESETS["diverse"]
         plan = recipe.plan(cfg)
         sharding.use_host_devices(train.host_devices_for(cfg.crop, None), cfg.batch)
-        from jtus.bench import workloads
         run, _, _ = workloads.train_workload(2, cfg.crop, cfg.batch, plan.window,
                                              plan.loss_frames)
         ref = workloads.torch_reference("dlctus")
         return {"jtus": run, "torch": ref.train_workload(2, cfg.crop, cfg.batch, plan.window,
                                                          plan.loss_frames)}
-    from jtus.bench import workloads
     if what in SIZES:
         run, _, model, *_ = workloads.infer_workload("dlctus", 2, SIZES[what])
         ref = workloads.torch_reference("dlctus")
         return {"jtus": run, "torch": ref.infer_workload(model.config, SIZES[what])}
-    from jtus.sim.generate import preset
-    from jtus.sim.suite import get as get_scene
-    from jtus.sim.video import VideoRenderer
     p = preset("default")
     r = VideoRenderer(get_scene("textures"), p.size, p.factors, p.spp, p.spp_match,
                       targets=p.targets)
@@ -99,13 +101,10 @@ ALLOCATORS = {
 
 
 def child(what, allocator, calls):
-    import ctypes
-
-    from jtus import hostmem
     if allocator != "default":
         assert hostmem.keep_freed_memory() == "kept", "glibc's allocator set by the environment"
     if allocator == "one-arena":  # M_ARENA_MAX (malloc.h), before any thread allocates
-        assert ctypes.CDLL("libc.so.6").mallopt(-8, 1) == 1
+        assert ctypes.CDLL(None).mallopt(M_ARENA_MAX, 1) == 1
     rec, rss = timed_calls(workload(what), calls)
     return {"what": what, "allocator": allocator,
             "rss_mib_half": rss[len(rss) // 2 - 1], "rss_mib_end": rss[-1],

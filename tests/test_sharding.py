@@ -7,6 +7,7 @@ import subprocess
 import sys
 import textwrap
 
+from jtus import train
 
 SCRIPT = textwrap.dedent("""
     import jax, jax.numpy as jnp, numpy as np, optax
@@ -64,9 +65,7 @@ def test_two_devices_give_the_same_update():
 
 def test_training_splits_its_batch_from_crop_128_on():
     """The default device split: one per core from crops of 128 on (measured faster
-    there), one device below (measured slower), whatever ``--host-devices`` asks."""
-    from jtus import train
-
+    there), one device below (measured slower); ``--host-devices`` overrides both."""
     assert train.host_devices_for(64) == 1
     assert train.host_devices_for(128) is None and train.host_devices_for(256) is None
     assert train.host_devices_for(64, asked=2) == 2 and train.host_devices_for(256, asked=1) == 1

@@ -76,11 +76,11 @@ def _train(report):
 
 def markdown(report):
     hw = report["hardware"]
-    lines = [f"Hardware: {hw['cpu']}, {hw['cores']} cores, JAX {hw['jax']} on {hw['backend']}.",
-             f"Command: `{report['command']}`", ""]
+    lines = [f"Hardware: {hw['cpu']}, {hw['cores']} cores, JAX {hw['jax']} on {hw['backend']}."]
     if "host_memory" in report:
-        lines[1:1] = [f"Host memory: {hostmem.describe(report['host_memory'])}; the PyTorch "
-                      f"references, timed in the same process, share it."]
+        lines.append(f"Host memory: {hostmem.describe(report['host_memory'])}; the PyTorch "
+                     f"references, timed in the same process, share it.")
+    lines += [f"Command: `{report['command']}`", ""]
     if "peak" in report:
         lines += _peak(report)
     if "infer" in report:
