@@ -70,9 +70,9 @@ def host_devices_for(crop, asked=None):
     """The XLA CPU devices a training step of ``crop``-pixel crops splits its batch over
     (``sharding.use_host_devices``'s ``n``; None: one per core): ``asked`` when given,
     else one per core from crops of ``SPLIT_MIN_CROP`` on and one device below. The
-    `diverse` step (crop 128) measured 1.08-1.24x faster split over two cores, the `default`
-    one (crop 64) 0.96x: its convolutions are too small to gain from a core each
-    (docs/performance.md, "Training on several cores")."""
+    `diverse` step (crop 128) measured 1.08-1.24x faster split over two cores, the
+    `default` one (crop 64) 0.89-1.11x in two runs: its convolutions are too small to gain
+    from a core each (docs/performance.md, "Training on several cores")."""
     if asked is not None:
         return asked
     return None if crop >= SPLIT_MIN_CROP else 1
