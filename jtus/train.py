@@ -575,6 +575,9 @@ def main(argv=None):
         if args.distributed:
             sharding.initialize(args.coordinator, args.num_processes, args.process_id)
         workdir = args.workdir or os.path.join("runs", f"{args.preset}-x{config.factor}")
+        test_videos = has_test_videos(config.dataset)
+        if not (args.no_eval or test_videos):
+            print(_NO_TEST.format(config.dataset), file=sys.stderr)
         train_and_evaluate(config, workdir, resume=args.resume, progress=not args.quiet,
                            overwrite=args.overwrite, force=args.force)
     except (ValueError, FileNotFoundError) as e:
@@ -583,20 +586,44 @@ def main(argv=None):
     if not sharding.is_main():
         return 0
     print(f"checkpoint: {os.path.join(workdir, checkpoint.CHECKPOINT)}", file=sys.stderr)
-    if not args.no_eval:
-        specs = ["jau", "tus", "shipped", f"trained={os.path.join(workdir, checkpoint.CHECKPOINT)}"]
-        try:
-            summary = evaluate.run(specs, config.dataset, [config.factor],
-                                   os.path.join(workdir, "eval"),
-                                   max_videos=config.test_videos or None,
-                                   progress=not args.quiet)
-        except (ValueError, FileNotFoundError) as e:
-            print(f"error: {e}", file=sys.stderr)
-            return 2
-        print(evaluate.markdown(summary))
-        print(f"wrote the evaluation (results.md, per-frame plots, crop grids) to "
-              f"{os.path.join(workdir, 'eval')}/; training curves in "
-              f"{os.path.join(workdir, 'training.png')}")
+    if args.no_eval:
+        return 0
+    if not has_test_videos(config.dataset):  # said before training if the file was there
+        if test_videos:
+            print(_NO_TEST.format(config.dataset), file=sys.stderr)
+        return 0
+    return _evaluate_after(args, config, workdir)
+
+
+_NO_TEST = "{} has no test split: no evaluation after training (--no-eval says so)"
+
+
+def has_test_videos(dataset):
+    """Whether ``dataset`` has videos in its test split (the training data of the holds
+    presets has none: their test holds are other files). True for a file that does not
+    exist yet: training then says what is missing."""
+    try:
+        with Dataset(dataset) as ds:
+            return bool(ds.videos("test"))
+    except FileNotFoundError:
+        return True
+
+
+def _evaluate_after(args, config, workdir):
+    """The test-split evaluation after training: JAU, TUS, the shipped and the trained
+    weights (``python -m jtus.evaluate``)."""
+    specs = ["jau", "tus", "shipped", f"trained={os.path.join(workdir, checkpoint.CHECKPOINT)}"]
+    try:
+        summary = evaluate.run(specs, config.dataset, [config.factor],
+                               os.path.join(workdir, "eval"),
+                               max_videos=config.test_videos or None, progress=not args.quiet)
+    except (ValueError, FileNotFoundError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    print(evaluate.markdown(summary))
+    print(f"wrote the evaluation (results.md, per-frame plots, crop grids) to "
+          f"{os.path.join(workdir, 'eval')}/; training curves in "
+          f"{os.path.join(workdir, 'training.png')}")
     return 0
 
 

@@ -4,7 +4,9 @@ import dataclasses
 import json
 import os
 import re
+import shutil
 
+import h5py
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -450,3 +452,19 @@ def test_alternate_preset_gives_every_second_sequence(tiny_data, tmp_path, monke
     assert recipe.alternate_config(weighted).temporal_weight == 3.0
     weighted = dataclasses.replace(weighted, loss="log-salvi", alternate_loss="log-mse")
     assert recipe.alternate_config(weighted).temporal_weight == 1.0
+
+
+def test_training_on_data_without_a_test_split_skips_the_evaluation(tiny_data, tmp_path,
+                                                                     capsys):
+    """Training data with no test split (the holds presets') trains, says before
+    training that no evaluation follows, and exits 0 without one."""
+    data = tmp_path / "no-test.h5"
+    shutil.copy(tiny_data, data)
+    with h5py.File(data, "a") as fh:
+        del fh["test"]
+    work = tmp_path / "run"
+    assert train.main(["--preset", "tiny", "--dataset", str(data), "--workdir", str(work),
+                       "--epochs", "1", "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert f"{data} has no test split: no evaluation after training" in err
+    assert (work / "checkpoint.msgpack").exists() and not (work / "eval").exists()
