@@ -272,8 +272,8 @@ def step(params, state: State, frame: Frame, config: Config = Config()):
     x, cur, rep = prepare(state, frame, config)
     wts, hidden = kernels(params, x, phase_index(frame.jitter, config), valid_taps(x, config))
     n = K * K
-    out = (jnp.einsum("bhwcn,bhwn->bhwc", _near(cur), wts[..., :n])
-           + jnp.einsum("bhwcn,bhwn->bhwc", _near(rep[..., :3]), wts[..., n:]))
+    out = (sampling.filter_neighbourhood(cur, wts[..., :n], K, mode="constant")
+           + sampling.filter_neighbourhood(rep[..., :3], wts[..., n:], K, mode="constant"))
     return out, State(jnp.concatenate([out, hidden], -1))
 
 
