@@ -210,8 +210,10 @@ def _padded_taps(x, size, mode):
 def neighbourhood(x, size, mode="edge"):
     """``[B,H,W,C] -> [B,H,W,C,size*size]``: each pixel's ``size`` x ``size``
     neighbourhood in raster order (row by row), padded with ``mode`` (``"edge"``
-    replicates, ``"constant"`` pads zeros)."""
-    return jnp.stack(_padded_taps(x, size, mode), -1)
+    replicates, ``"constant"`` pads zeros). Stacked on a new leading axis and then
+    moved last: XLA:CPU writes a stack whose new axis is the fastest-varying one about
+    half as fast (docs/performance.md)."""
+    return jnp.moveaxis(jnp.stack(_padded_taps(x, size, mode), 0), 0, -1)
 
 
 def _filter_einsum(x, weights, size, mode):
