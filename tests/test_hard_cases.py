@@ -6,6 +6,8 @@ flicker. The classical running-mean TUS (``tus-mean``) is the control here; the
 shipped DLCTUS's version of this test belongs with its training (docs/weights.md).
 """
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -26,11 +28,19 @@ def holds():
             for j in VARIETY}
 
 
-def _psnr_curve(name, factor, frames, targets):
+@functools.lru_cache(maxsize=None)
+def _rollout(name, factor):
+    """The model and its jitted rollout, compiled once per model and factor: every
+    jitter's hold has the same shapes."""
     model = models.build(name, factor)
+    return model, jax.jit(lambda s, f: rollout.outputs(model.step, {}, s, f))
+
+
+def _psnr_curve(name, factor, frames, targets):
+    model, run = _rollout(name, factor)
     fr = jax.tree_util.tree_map(jnp.asarray, frames)
     state = model.init_state(jax.tree_util.tree_map(lambda x: x[0], fr))
-    outs, _ = jax.jit(lambda s, f: rollout.outputs(model.step, {}, s, f))(state, fr)
+    outs, _ = run(state, fr)
     return np.asarray(jax.vmap(metrics.psnr)(outs, jnp.asarray(targets)))[:, 0]
 
 
