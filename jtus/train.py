@@ -20,7 +20,8 @@ parameters and the optimizer state.
 
 The run's parts come from ``jtus.recipe`` (model, loss, optimizer, window plan), its
 configuration from ``jtus.config``, its files from ``jtus.checkpoint``; the final
-comparison is ``jtus.evaluate.run``.
+comparison is ``jtus.evaluate.run``, on the dataset's test split (skipped, and said so
+before training, where it has none, as the holds presets' data).
 """
 
 from __future__ import annotations
