@@ -14,6 +14,7 @@ import pytest
 from jtus import checkpoint, loading, recipe, train
 from jtus import config as config_mod
 from jtus.config import PRESETS
+from jtus.models import dlctus, kernels
 from tests import seqdata
 
 
@@ -490,6 +491,20 @@ def test_inference_bound_splits_a_frame_into_network_floor_and_rest():
     assert row["network_floor_ms"] == pytest.approx(50.0)
     assert row["rest_ms"] == pytest.approx(30.0)
     assert row["at_peak_ms"] == pytest.approx(80.0)
+
+
+def test_trunk_in_bands_of_rows_is_the_trunk(monkeypatch):
+    """experiments/trunk_strips.py times the band trunk only after checking it against
+    the XLA trunk in float64 (SAME and VALID bands): the check passes, and it stops the
+    run when one band row is off by 1e-9."""
+    ts = seqdata.load_script("trunk_strips")
+    weights = kernels.stack_blocks(dlctus.init(jax.random.PRNGKey(0)), 4)
+    ts.check(weights, [3])
+    right = ts.trunk_bands
+    monkeypatch.setattr(ts, "trunk_bands",
+                        lambda *a: right(*a).at[:, 17].add(1e-9))
+    with pytest.raises(SystemExit, match="differ from the trunk"):
+        ts.check(weights, [2])
 
 
 def test_scan_residuals_sums_the_buffers_the_scan_stacks():
