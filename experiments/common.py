@@ -9,6 +9,7 @@ import os
 import shlex
 import shutil
 import sys
+import time
 
 
 import numpy as np
@@ -21,6 +22,17 @@ RESULTS = os.path.join(ROOT, "docs", "results")
 # the DLCTUS reprojection warps the experiments compare: (method, Keys a), cheapest first
 WARPS = (("bilinear", -0.75), ("bicubic5", -0.75), ("bicubic9", -0.75), ("catmull_rom", -0.5),
          ("bicubic", -0.75))
+
+
+def cpu_per_wall(fn, repeats):
+    """``(wall seconds per call, process CPU seconds per wall second)`` over ``repeats``
+    calls of ``fn`` after one warm-up call (its compile not counted)."""
+    fn()
+    c0, t0 = os.times(), time.perf_counter()
+    for _ in range(repeats):
+        fn()
+    c1, t1 = os.times(), time.perf_counter()
+    return (t1 - t0) / repeats, (c1.user - c0.user + c1.system - c0.system) / (t1 - t0)
 
 
 def out_dir(name):

@@ -22,7 +22,6 @@ import json
 import os
 import shlex
 import sys
-import time
 
 import jax
 import jax.numpy as jnp
@@ -31,21 +30,11 @@ import torch
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 
+from common import cpu_per_wall
 from jtus import config as run_config
 from jtus import recipe, sharding, timing
 from jtus.bench import workloads
 from jtus.models import dlctus, kernels, layers
-
-
-def cpu_per_wall(fn, repeats):
-    """``(wall seconds per call, process CPU seconds per wall second)`` over ``repeats``
-    calls of ``fn`` after one warm-up call (its compile not counted)."""
-    fn()
-    c0, t0 = os.times(), time.perf_counter()
-    for _ in range(repeats):
-        fn()
-    c1, t1 = os.times(), time.perf_counter()
-    return (t1 - t0) / repeats, (c1.user - c0.user + c1.system - c0.system) / (t1 - t0)
 
 
 def op_threads(repeats=300):

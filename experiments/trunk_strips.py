@@ -16,13 +16,12 @@ Writes ``docs/results/<name>/result.{md,json}``.
 from __future__ import annotations
 
 import argparse
-import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from common import write
+from common import cpu_per_wall, write
 from jtus.bench.workloads import SIZES
 from jtus.models import dlctus, kernels, layers
 from jtus.timing import timeit_round_robin
@@ -72,13 +71,6 @@ def check(args, bands):
                                      f"by {err}")
 
 
-def busy(fn, calls=3):
-    c0, t0 = time.process_time(), time.perf_counter()
-    for _ in range(calls):
-        fn()
-    return (time.process_time() - c0) / (time.perf_counter() - t0)
-
-
 def measure(size, args, bands, valid, repeats, rounds):
     H, W = SIZES[size]
     h = jnp.asarray(np.random.default_rng(1).normal(size=(1, H // 4, W // 4, 32)),
@@ -96,7 +88,7 @@ def measure(size, args, bands, valid, repeats, rounds):
     base = float(np.median(times["one image"]))
     return [{"size": size, "trunk": f"{H // 4}x{W // 4}", "variant": k,
              "ms": float(np.median(v)), "ms_rounds": v, "speedup": base / np.median(v),
-             "cores_busy": busy(fns[k])} for k, v in times.items()]
+             "cores_busy": cpu_per_wall(fns[k], 3)[1]} for k, v in times.items()]
 
 
 def table(rows):

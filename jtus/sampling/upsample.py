@@ -232,6 +232,10 @@ def filter_neighbourhood(x, weights, size, mode="edge"):
     builds the stack once: the forward sum's own autodiff backward (one slice or pad
     per tap for both arguments) measured slower in KPN's training step. The same
     values as the einsum up to float rounding, and its gradients."""
+    return _filter_sum(x, weights, size, mode)
+
+
+def _filter_sum(x, weights, size, mode):
     out = None
     taps = jnp.split(weights.astype(x.dtype), size * size, axis=-1)
     for view, w in zip(_padded_taps(x, size, mode), taps):
@@ -240,7 +244,7 @@ def filter_neighbourhood(x, weights, size, mode="edge"):
 
 
 def _filter_fwd(x, weights, size, mode):
-    return filter_neighbourhood(x, weights, size, mode), (x, weights)
+    return _filter_sum(x, weights, size, mode), (x, weights)
 
 
 def _filter_bwd(size, mode, res, g):
