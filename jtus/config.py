@@ -28,7 +28,7 @@ class Config:
     factor: int = 4
     loss: str = "l1"
     theta: float = 0.5
-    temporal_weight: float = 1.0  # the weight of salvi's and log-salvi's temporal term
+    temporal_weight: float = 1.0  # the weight of the temporal term of losses.WEIGHTED_TEMPORAL
     temporal_from: int = 0      # > 0: temporal_weight from this frame of each sequence on,
                                 # the thesis's weight 1 before it (recipe.late_loss_for)
     seq_len: int = 8

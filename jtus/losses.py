@@ -16,6 +16,10 @@ start of a video, ``has_prev`` False) or the reprojection leaves the image, ``y 
   to scale and offset); ``log-salvi``: the same of Salvi's loss per crop,
   ``log(mean(x^2) + w * mean((x - y)^2) + 1e-7)``, so a flicker on a still surface (its
   error changing from frame to frame) costs relative to the crop's own error;
+  ``log-salvi-unsampled``: the same with the temporal term counted only at the HR pixels
+  that received no sample this frame (``m`` = 1 there, 0 under each LR sample's jittered
+  position), ``log(mean(x^2) + w * mean(m * (x - y)^2) + 1e-7)``: an output pixel that
+  got no new information should not change, one that got a sample may correct itself;
 - ``st`` with θ (eq. 51-52): ``mean(x^2 + y^2 - 2θxy)``;
 - ``st-linear`` with θ (eq. 54-55): ``mean(|x| + |y| + θ(|x - y| - |x| - |y|))``:
   θ=0 is the L1 of the current and the previous error, θ=1 the temporal term
@@ -40,8 +44,8 @@ import jax.numpy as jnp
 
 from jtus import metrics, perceptual, sampling
 
-NAMES = ("l1", "mse", "log-mse", "log-salvi", "salvi", "st", "st-linear", "ssim", "ssim-srgb",
-         "kpn")
+NAMES = ("l1", "mse", "log-mse", "log-salvi", "log-salvi-unsampled", "salvi", "st", "st-linear",
+         "ssim", "ssim-srgb", "kpn")
 
 
 def warp_previous(prev, motion, factor, method):
@@ -57,6 +61,13 @@ def errors(out, target, prev_out, prev_target, has_prev, frame, factor, method="
     x = out - target
     y, inside = warp_previous(prev_out - prev_target, frame.motion, factor, method)
     return x, jnp.where(inside & has_prev, y, 0.0)
+
+
+def unsampled_mask(frame, factor):
+    """``[B,H,W,1]``: 1 at the HR pixels no LR sample of ``frame`` landed on, 0 at the one
+    pixel per LR pixel under the jittered sample (``sampling.zero_upsample``'s)."""
+    ones = jnp.ones(frame.color.shape[:-1] + (1,), frame.color.dtype)
+    return 1.0 - sampling.zero_upsample(ones, frame.jitter, factor)
 
 
 def st_linear_terms(x, y, theta):
@@ -98,8 +109,11 @@ def _temporal(kind, theta, weight, factor, method, out, target, prev_out, prev_t
     x, y = errors(out, target, prev_out, prev_target, has_prev, frame, factor, method)
     if kind == "salvi":
         return jnp.mean(x * x) + weight * jnp.mean(jnp.square(x - y))
-    if kind == "log-salvi":
-        per_crop = _per_crop(x * x) + weight * _per_crop(jnp.square(x - y))
+    if kind in ("log-salvi", "log-salvi-unsampled"):
+        change = jnp.square(x - y)
+        if kind == "log-salvi-unsampled":
+            change = change * unsampled_mask(frame, factor)
+        per_crop = _per_crop(x * x) + weight * _per_crop(change)
         return jnp.mean(jnp.log(per_crop + LOG_MSE_FLOOR))
     if kind == "st":
         return jnp.mean(x * x + y * y - 2 * theta * x * y)
@@ -120,7 +134,8 @@ def with_perceptual(base, weights_path, weight=0.1):
     return loss
 
 
-WEIGHTED_TEMPORAL = ("salvi", "log-salvi")  # the losses ``temporal_weight`` applies to
+# the losses ``temporal_weight`` applies to
+WEIGHTED_TEMPORAL = ("salvi", "log-salvi", "log-salvi-unsampled")
 
 
 def make(name, factor, theta=0.5, method="bilinear", perceptual_weights=None,
@@ -136,7 +151,7 @@ def make(name, factor, theta=0.5, method="bilinear", perceptual_weights=None,
     plain = {"l1": _l1, "mse": _mse, "log-mse": _log_mse, "ssim": _ssim, "ssim-srgb": _ssim_srgb}
     if name in plain:
         base = plain[name]
-    elif name in ("salvi", "log-salvi", "st", "st-linear"):
+    elif name in WEIGHTED_TEMPORAL + ("st", "st-linear"):
         if name in ("st", "st-linear") and not 0.0 <= theta <= 1.0:
             raise ValueError(f"theta: expected a value in [0, 1], got {theta}")
         base = functools.partial(_temporal, name, theta, temporal_weight, factor, method)

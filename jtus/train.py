@@ -456,7 +456,8 @@ _FIELD_HELP = {
                  "--alternate-loss names another",
     "alternate_loss": "the loss of the --alternate sequences (one of the --loss names); "
                       "default: this run's --loss",
-    "temporal_weight": "the weight of the temporal term of --loss salvi and log-salvi "
+    "temporal_weight": "the weight of the temporal term of --loss salvi, log-salvi and "
+                       "log-salvi-unsampled "
                        "(default 1, the thesis's eq. 43)",
     "temporal_from": "apply --temporal-weight from this frame of each sequence on, weight "
                      "1 before it (e.g. only once a static hold has had time to converge); "

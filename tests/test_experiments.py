@@ -700,3 +700,26 @@ def test_fine_tune_that_changes_the_model_design_says_so(tmp_path, capsys):
     assert (f"note: init_from: {src} was trained with another design than this run's "
             "model (exposure: 'normalized' -> 'absolute'); --model-override sets this "
             "run's" in capsys.readouterr().err)
+
+
+def test_blend_scale_probe_is_the_model_at_one_and_keeps_the_history_at_zero(rng):
+    """experiments/blend_scale.py's DLCTUS with o1 scaled by c: c = 1 gives the model's own
+    step (outputs and history, 1e-6); c -> 0 keeps the reprojected history's colour (a
+    still frame: the previous output) while the accumulation channel still takes o2."""
+    bs = seqdata.load_script("blend_scale")
+    model = dlctus.make(dlctus.Config(factor=2))
+    params = model.init(jax.random.PRNGKey(1))
+    entry = loading.Entry("m", model, params, "dlctus")
+    frame = seqdata.frame_with_motion(np.zeros((1, 8, 8, 2), np.float32))._replace(
+        color=jax.numpy.asarray(rng.uniform(size=(1, 8, 8, 3)), jax.numpy.float32),
+        jitter=jax.numpy.asarray([[0.3, 0.7]], jax.numpy.float32))
+    state = model.init_state(frame)
+    state = dlctus.State(state.history.at[..., :3].set(
+        jax.numpy.asarray(rng.uniform(size=(1, 16, 16, 3)), jax.numpy.float32)))
+    want_out, want_state = model.step(params, state, frame)
+    got_out, got_state = bs.scaled_entry(entry, 1.0).model.step(params, state, frame)
+    np.testing.assert_allclose(got_out, want_out, atol=1e-6)
+    np.testing.assert_allclose(got_state.history, want_state.history, atol=1e-6)
+    out0, _ = bs.scaled_entry(entry, 1e-9).model.step(params, state, frame)
+    np.testing.assert_allclose(out0, state.history[..., :3], atol=1e-6)
+    assert float(np.abs(np.asarray(want_out) - np.asarray(state.history[..., :3])).max()) > 1e-3

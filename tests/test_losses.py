@@ -98,6 +98,38 @@ def test_log_salvi_is_the_batch_mean_of_log_salvi_per_crop(rng):
             losses.make("log-salvi", 2, temporal_weight=bad)
 
 
+@pytest.mark.parametrize("factor", [2, 4])
+def test_log_salvi_unsampled_counts_the_change_only_where_no_sample_landed(rng, factor):
+    """``log-salvi-unsampled``: log(mean(x^2) + w mean(m (x - y)^2) + 1e-7) per crop, ``m``
+    zero at the one HR pixel per LR pixel under the frame's jittered sample, against numpy
+    in float64 (1e-5); a change only at the sampled pixels costs nothing beyond
+    ``log-mse``, the same change at an unsampled pixel does."""
+    b, h, w = 2, 3, 4
+    shape = (b, h * factor, w * factor, 3)
+    target, prev_target = (rng.uniform(size=shape) for _ in range(2))
+    x, y = (rng.normal(size=shape) * 0.01 for _ in range(2))
+    jitter = np.array([[0.7, 0.2], [0.1, 0.9]], np.float32)
+    frame = seqdata.frame_with_motion(np.zeros((b, h, w, 2), np.float32))._replace(
+        jitter=jnp.asarray(jitter))
+    m = np.ones(shape[:3] + (1,))
+    for i, (jx, jy) in enumerate(jitter):  # the sampled pixel of every LR pixel
+        m[i, int(jy * factor)::factor, int(jx * factor)::factor] = 0.0
+    loss = losses.make("log-salvi-unsampled", factor, temporal_weight=3.0)
+    f32 = functools.partial(jnp.asarray, dtype=jnp.float32)
+
+    def call(err, prev_err):
+        return float(loss(f32(target + err), f32(target), f32(prev_target + prev_err),
+                          f32(prev_target), jnp.asarray(True), frame))
+
+    per_crop = (x ** 2).mean(axis=(1, 2, 3)) + 3.0 * (m * (x - y) ** 2).mean(axis=(1, 2, 3))
+    np.testing.assert_allclose(call(x, y), np.mean(np.log(per_crop + 1e-7)), rtol=1e-5)
+    log_mse = float(losses.make("log-mse", factor)(f32(target + x), f32(target), None, None,
+                                                    None, None))
+    np.testing.assert_allclose(call(x, x + (1 - m) * y), log_mse, rtol=1e-5)
+    assert call(x, x + m * y) > log_mse + 0.01
+    np.testing.assert_array_equal(losses.unsampled_mask(frame, factor), m)
+
+
 def test_previous_error_is_warped_with_motion(rng):
     """With a uniform motion of one LR pixel to the left (surfaces come from x + 1),
     the previous error is read f HR pixels to the right; outside it is 0."""
