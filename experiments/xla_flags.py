@@ -1,5 +1,6 @@
-"""XLA:CPU's library fusions (XNNPACK graph fusion, YNN and oneDNN fusion types) on
-DLCTUS training and inference, each against PyTorch timed alongside.
+"""XLA:CPU's library fusions (XNNPACK graph fusion, YNN and oneDNN fusion types) and two
+of its scheduling options (copy insertion's region analysis, the concurrency-optimized
+scheduler) on DLCTUS training and inference, each against PyTorch timed alongside.
 
 XLA flags are read once per process, so each variant is one ``python -m jtus.bench``
 run with its own ``XLA_FLAGS``; inside that run PyTorch's step alternates with jtus's
@@ -36,6 +37,11 @@ VARIANTS = {
     "onednn": "--xla_cpu_use_onednn=true",
     "onednn-fusion-dot,eltwise,reduce":
         "--xla_cpu_use_onednn=true --xla_cpu_experimental_onednn_fusion_type=dot,eltwise,reduce",
+    # copy insertion with region analysis (off by default on the CPU): fewer copies of a
+    # while loop's carried buffers, where the scan's bookkeeping goes
+    "copy-region-analysis": "--xla_cpu_copy_insertion_use_region_analysis=true",
+    # the scheduler that orders independent operations for concurrency (on by default)
+    "no-concurrency-scheduler": "--xla_cpu_enable_concurrency_optimized_scheduler=false",
 }
 
 
