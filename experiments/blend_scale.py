@@ -36,15 +36,14 @@ MOVING = {"diverse val": "data/diverse.h5", "game val": "data/game.h5"}
 
 
 def scaled_advance(params, state, pre, config, scale):
-    """``dlctus.advance`` with ``o1`` multiplied by ``scale`` (eq. 44-45 otherwise)."""
+    """``dlctus.advance`` with ``o1`` multiplied by ``scale``: the clamped network output
+    times ``scale`` on its ``o1`` channels (``pixel_unshuffle`` of the per-pixel factors
+    ``(scale, 1)``), then the model's own output construction."""
     net_in, jau, hist = dlctus.reproject(state, pre, config)
     net = jnp.clip(dlctus.network(params, net_in, config).astype(jau.dtype), 0.0, 1.0)
-    o = sampling.pixel_shuffle(net, dlctus.DOWN)
-    o1 = o[..., 0:1] * scale
-    out = jau * o1 + hist * (1 - o1)
-    if config.accumulation:
-        out = jnp.concatenate([out[..., :3], out[..., 3:] * o[..., 1:2]], -1)
-    out = jnp.clip(out, 0.0, 1.0)
+    factors = jnp.broadcast_to(jnp.asarray([scale, 1.0], jau.dtype), jau.shape[:-1] + (2,))
+    out = dlctus.output(jau, hist, net * sampling.pixel_unshuffle(factors, dlctus.DOWN),
+                        config)
     return out[..., :3], dlctus.State(out)
 
 

@@ -221,7 +221,10 @@ def _construct(jau, hist, o1, o2, config, axis):
     return jnp.clip(out, 0.0, 1.0)
 
 
-def _output(jau, hist, net, config):
+def output(jau, hist, net, config):
+    """Stage 4, eq. 44-45: the new history ``[B,H,W,4]`` from the jitter-aligned input
+    ``jau``, the reprojected history ``hist`` and the network's output ``net`` (before the
+    shuffle; clamped to [0,1] here)."""
     net = jnp.clip(net.astype(jau.dtype), 0.0, 1.0)
     if config.formulation == "opt1":
         # Stay in space-to-depth layout [B,H/4,W/4,channel,sub-pixel]; shuffle once.
@@ -284,7 +287,7 @@ def advance(params, state: State, pre: Prepared, config: Config = Config()):
     with jax.named_scope("network"):
         net = network(params, net_in, config)
     with jax.named_scope("output"):
-        out = _edge(functools.partial(_output, config=config), config)(jau, hist, net)
+        out = _edge(functools.partial(output, config=config), config)(jau, hist, net)
     return out[..., :3], State(out)
 
 
