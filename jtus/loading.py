@@ -157,7 +157,8 @@ def init_params(config: Config):
             print(f"note: init_from: {config.init_from} was trained with another design "
                   f"than this run's model ({'; '.join(changed)}); --model-override sets "
                   f"this run's", file=sys.stderr)
-        return params
+        spec = models.spec(config.model)
+        return spec.adapt(params, recipe.model_config(config)) if spec.adapt else params
     return recipe.model_for(config).init(jax.random.PRNGKey(config.seed))
 
 

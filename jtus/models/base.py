@@ -145,6 +145,8 @@ class Spec(NamedTuple):
     torch_reference: str = ""           # its module in jtus.reference (bench, tests)
     export: Optional[ExportIO] = None   # its step exports (stablehlo, onnx)
     shipped: bool = False               # weights ship as jtus/weights/<name>-x<f>.msgpack
+    adapt: Optional[Callable] = None    # (params, config) -> params grown to the config's
+                                        # inputs (a fine-tune of another design's weights)
 
 
 def compute_dtype(name):

@@ -80,6 +80,11 @@ class Config:
     remat_edges: bool = True
     channels: int = 32
     blocks: int = 4
+    # A variant, not the thesis's model: one more input channel, how far the history
+    # read lies from a pixel centre (``resample_offset``), 0 where the history is read
+    # exactly (a still pixel) and up to 1 where the bicubic read blurs it most; the
+    # blend can then keep a long memory where the history is exact
+    resample_input: bool = False
 
     def __post_init__(self):
         if self.factor not in (2, 4):
@@ -101,6 +106,11 @@ class Config:
             raise ValueError(f"kernels: expected one of {KERNELS}, got {self.kernels!r}")
         compute_dtype(self.dtype)
 
+    @property
+    def in_channels(self):
+        """The network's input channels: eq. 46's 8, 9 with ``resample_input``."""
+        return 8 + int(self.resample_input)
+
     def trunk_form(self, backend=None):
         """The trunk's form on ``backend`` (JAX's default if None): ``kernels``, or for
         ``"auto"`` the Pallas kernels on a GPU in bfloat16, the one case where they were
@@ -121,13 +131,38 @@ def init(key, config: Config = Config()):
     """Parameters with PyTorch's default initialization (kernels HWIO)."""
     keys = jax.random.split(key, 1 + 2 * config.blocks)
     c = config.channels
-    params = {"down": layers.torch_uniform_init(keys[0], (DOWN, DOWN, 8, c))}
+    params = {"down": layers.torch_uniform_init(keys[0], (DOWN, DOWN, config.in_channels, c))}
     for i in range(config.blocks):
         params[f"block{i + 1}"] = {
             "conv1": layers.torch_uniform_init(keys[1 + 2 * i], (3, 3, c, c)),
             "conv2": layers.torch_uniform_init(keys[2 + 2 * i], (3, 3, c, c)),
         }
     return params
+
+
+def adapt_params(params, config: Config = Config()):
+    """Parameters of the thesis's 8-input network grown to ``config``'s inputs: the
+    ``resample_input`` channel's kernel rows are zero, so the grown network computes
+    what the given one does until training moves them. Parameters that already fit
+    are returned as they are."""
+    k = params["down"]["kernel"]
+    have, want = k.shape[2], config.in_channels
+    if have == want:
+        return params
+    if have != 8 or want < have:
+        raise ValueError(f"params: down kernel with {have} input channels, this config "
+                         f"takes {want}")
+    grown = jnp.concatenate([k, jnp.zeros(k.shape[:2] + (want - have, k.shape[3]), k.dtype)],
+                            axis=2)
+    return {**params, "down": {**params["down"], "kernel": grown}}
+
+
+def resample_offset(motion, factor):
+    """``[B,H,W,1]``: how far each HR pixel's history read (at ``P + f * mv``, mv
+    up-sampled bilinearly) lies from a pixel centre, ``|dx - round(dx)| + |dy -
+    round(dy)|`` in [0, 1]: 0 where the read is exact, as on a still pixel."""
+    d = factor * sampling.upsample(motion, factor)
+    return jnp.sum(jnp.abs(d - jnp.round(d)), axis=-1, keepdims=True)
 
 
 def _cast(frame, config):
@@ -164,12 +199,20 @@ class NetInput(NamedTuple):
     lr: jax.Array      # [B,h,w,4] RGB and linear depth, low resolution
     jitter: jax.Array  # [B,2]
     hist: jax.Array    # [B,H,W,4] the reprojected history
+    offset: Optional[jax.Array] = None  # [B,H,W,1] ``resample_offset`` (resample_input)
+
+
+def _hist_part(x: NetInput):
+    """The HR half of the input: the history, and the resample offset when given."""
+    return x.hist if x.offset is None else jnp.concatenate(
+        [x.hist, x.offset.astype(x.hist.dtype)], -1)
 
 
 def assemble(x: NetInput, config: Config):
-    """The dense 8-channel network input ``[B,H,W,8]`` (eq. 46's input)."""
+    """The dense network input ``[B,H,W,8]`` (eq. 46's input; 9 channels with the
+    resample offset)."""
     zero = sampling.zero_upsample(x.lr, x.jitter, config.factor)
-    return jnp.concatenate([zero, x.hist.astype(zero.dtype)], -1)
+    return jnp.concatenate([zero, _hist_part(x).astype(zero.dtype)], -1)
 
 
 def _down(params, x: NetInput, config, dt):
@@ -192,7 +235,7 @@ def _down(params, x: NetInput, config, dt):
     lr = sampling.pixel_unshuffle(x.lr, m) if m > 1 else x.lr
     zero_part = jnp.einsum("bhwk,bko->bhwo", lr.astype(dt), k_lr.astype(dt))
     k_h = k[:, :, c_lr:].transpose(2, 0, 1, 3).reshape(-1, k.shape[-1])  # (c, dy, dx)
-    hist_part = sampling.pixel_unshuffle(x.hist.astype(dt), DOWN) @ k_h.astype(dt)
+    hist_part = sampling.pixel_unshuffle(_hist_part(x).astype(dt), DOWN) @ k_h.astype(dt)
     return zero_part + hist_part + b.astype(dt)
 
 
@@ -249,6 +292,7 @@ class Prepared(NamedTuple):
     jau: jax.Array                # [B,H,W,4] jitter-aligned input, accumulation 1
     warp: sampling.WarpPlan       # the history read at P + f * mv
     reset: Optional[jax.Array]    # [B] bool or None
+    offset: Optional[jax.Array] = None  # [B,H,W,1] ``resample_offset`` (resample_input)
 
 
 def prepare_frame(frame: Frame, config: Config = Config()) -> Prepared:
@@ -262,7 +306,8 @@ def prepare_frame(frame: Frame, config: Config = Config()) -> Prepared:
         mv = sampling.dilate_motion(motion, depth) if config.dilation else motion
         plan = sampling.reproject_plan(mv, f, method=config.warp, a=config.warp_a,
                                        dtype=jau.dtype)
-    return Prepared(lr, jitter, jau, plan, frame.reset)
+        offset = resample_offset(mv, f) if config.resample_input else None
+    return Prepared(lr, jitter, jau, plan, frame.reset, offset)
 
 
 def reproject(state: State, pre: Prepared, config: Config):
@@ -278,7 +323,7 @@ def reproject(state: State, pre: Prepared, config: Config):
         # reprojected: this frame's motion points into a frame the history never saw
         # (the thesis's listing treats the first frame the same way).
         hist = reset_select(pre.reset, pre.jau, hist)
-    return NetInput(pre.lr, pre.jitter, hist), pre.jau, hist
+    return NetInput(pre.lr, pre.jitter, hist, pre.offset), pre.jau, hist
 
 
 def advance(params, state: State, pre: Prepared, config: Config = Config()):
@@ -304,7 +349,7 @@ def cost(config: Config, H, W) -> Cost:
     """FLOPs and bytes of one H x W output frame (``jtus.cost``)."""
     n = (H // 4) * (W // 4)
     c = config.channels
-    down = n * c * (4 * 4 * 8) * 2
+    down = n * c * (4 * 4 * config.in_channels) * 2
     convs = 2 * config.blocks * n * c * c * 9 * 2
     net = down + convs + n * c * config.blocks * 3  # bias, ReLU, residual add
     px = H * W
@@ -380,6 +425,9 @@ def _torch_shape(hwio):
 
 def params_to_torch(params, config: Config = Config()):
     """The inverse of ``params_from_torch``: an ordered dict of torch tensors (OIHW)."""
+    if config.resample_input:
+        raise ValueError("resample_input: the thesis's PyTorch model has 8 input channels; "
+                         "this variant's 9 have no PyTorch counterpart")
     import torch  # lazy: torch is optional, needed only to write PyTorch tensors
 
     out = collections.OrderedDict()
@@ -437,4 +485,4 @@ SPECS = (Spec("dlctus", make, lambda f: Config(factor=f), cost, trainable=True,
               dtypes=("float32", "bfloat16", "float16"), formulations=FORMULATIONS, kernels=KERNELS,
               network=network_workload, torch_checkpoint=load_torch_checkpoint,
               torch_state_dict=params_to_torch, torch_reference="torch_dlctus",
-              export=EXPORT, shipped=True),)
+              export=EXPORT, shipped=True, adapt=adapt_params),)

@@ -48,6 +48,8 @@ def unsupported(config):
         return f"warp_a={config.warp_a} (GridSample's cubic kernel has a=-0.75)"
     if config.dilation:
         return "dilation=True (no ONNX operator for the 3x3 nearest-depth selection)"
+    if config.resample_input:
+        return "resample_input=True (the graph builds the thesis's 8-channel input)"
     return None
 
 
