@@ -22,6 +22,10 @@ followed by a 1x1 convolution, i.e. a matmul).
 Without the accumulation buffer the history's fourth channel is held at 1: the
 network still sees 8 channels and ``o2`` is unused.
 
+``resample_input`` (a variant, not the thesis's model) gives the network a ninth
+channel after the history, ``resample_offset``: how far the history read lies from a
+pixel centre. ``adapt_params`` grows 8-input weights for it with zero rows.
+
 In training, the 4x4 down-sampling and the output construction are recomputed in the
 backward pass (``remat_edges``, ``jax.checkpoint``): a training scan would otherwise
 stack their residuals (the history in two layouts, the blend's masks and factors) for
