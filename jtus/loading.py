@@ -152,13 +152,14 @@ def init_params(config: Config):
             raise ValueError(f"init_from: {config.init_from} holds {init_cfg.model} at "
                              f"{init_cfg.factor}x, this run trains {config.model} at "
                              f"{config.factor}x")
-        changed = model_changes(recipe.model_config(init_cfg), recipe.model_config(config))
+        model_config = recipe.model_config(config)
+        changed = model_changes(recipe.model_config(init_cfg), model_config)
         if changed:
             print(f"note: init_from: {config.init_from} was trained with another design "
                   f"than this run's model ({'; '.join(changed)}); --model-override sets "
                   f"this run's", file=sys.stderr)
         spec = models.spec(config.model)
-        return spec.adapt(params, recipe.model_config(config)) if spec.adapt else params
+        return spec.adapt(params, model_config) if spec.adapt else params
     return recipe.model_for(config).init(jax.random.PRNGKey(config.seed))
 
 
