@@ -10,8 +10,8 @@ import optax
 import pytest
 from PIL import Image
 
-from jtus import evaluate, models, recipe, rollout, sampling, train
-from jtus.config import PRESETS
+from jtus import checkpoint, evaluate, loading, models, recipe, rollout, sampling, train
+from jtus.config import PRESETS, Config, to_json
 from jtus.data import dataset
 from jtus.models import kpn, mlp, nsrr
 from jtus.models.base import param_count
@@ -166,14 +166,21 @@ def test_kpn_sample_mask_marks_the_hr_pixel_under_each_sample(factor):
         np.testing.assert_array_equal(mask[b], np.tile(want, (4, 3)))
 
 
-def test_kpn_given_the_sample_mask_starts_as_the_kpn_it_was_made_from():
-    """``add_sample_mask`` gives the first convolution a zero weight for the new channel:
-    the widened network's outputs and state equal the original's; parameters that
-    already take the mask are refused."""
+def test_kpn_given_the_sample_mask_starts_as_the_kpn_it_was_made_from(tmp_path):
+    """``kpn.adapt_params`` gives the first convolution a zero weight for the new
+    channel: the grown network's outputs and state equal the original's, both built by
+    ``loading.init_params`` from a checkpoint without the mask (what ``--init-from``
+    with ``--model-override sample_mask=true`` trains from); parameters that already
+    fit are kept, other input layouts refused by name."""
     frames, _ = _frames(T=2, B=2)
     plain, masked = kpn.Config(), kpn.Config(sample_mask=True)
     params = kpn.init(jax.random.PRNGKey(3), plain)
-    wide = kpn.add_sample_mask(params)
+    src = checkpoint.write_params(str(tmp_path / "kpn"), params,
+                                  to_json(Config(model="kpn", factor=4)))
+    wide = loading.init_params(Config(model="kpn", factor=4, init_from=src,
+                                      model_overrides=(("sample_mask", True),)))
+    assert wide["conv1"]["kernel"].shape[2] == masked.in_channels()
+    np.testing.assert_array_equal(wide["conv1"]["kernel"][:, :, -1], 0)
     fr = seqdata.first(frames)
     s0 = s1 = kpn.init_state(fr, plain)
     for t in range(2):
@@ -181,8 +188,11 @@ def test_kpn_given_the_sample_mask_starts_as_the_kpn_it_was_made_from():
         o0, s0 = kpn.step(params, s0, fr, plain)
         o1, s1 = kpn.step(wide, s1, fr, masked)
         np.testing.assert_allclose(np.asarray(o1), np.asarray(o0), rtol=0, atol=1e-6)
-    with pytest.raises(ValueError, match="conv1"):
-        kpn.add_sample_mask(wide)
+    assert kpn.adapt_params(wide, masked) is wide
+    with pytest.raises(ValueError, match="conv1 takes 15 input channels, this config takes 14"):
+        kpn.adapt_params(wide, plain)
+    with pytest.raises(ValueError, match="only the sample-mask channel"):
+        kpn.adapt_params(params, kpn.Config(current="samples"))
 
 
 @pytest.mark.parametrize("factor", [2, 4])

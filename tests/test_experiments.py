@@ -549,38 +549,6 @@ def test_interpolated_weights_lie_on_the_line_between_two_checkpoints():
         iw.interpolate(a, {"w": b["w"], "b": np.zeros(4)}, 0.5)
 
 
-def test_kpn_checkpoint_gains_the_sample_mask_as_a_no_op(tmp_path):
-    """experiments/kpn_sample_mask.py writes a KPN checkpoint widened for the sample-mask
-    input, with ``sample_mask`` in its config, that loads and computes what the original
-    computes; another model's checkpoint, or one already widened, is refused by name."""
-    from jtus.config import Config
-    from jtus.models import kpn
-
-    ks = seqdata.load_script("kpn_sample_mask")
-    cfg = Config(model="kpn", factor=2)
-    params = kpn.init(jax.random.PRNGKey(0), kpn.Config(factor=2))
-    src = checkpoint.write_params(str(tmp_path / "kpn"), params, config_mod.to_json(cfg))
-    ks.main([src, "--out", str(tmp_path / "wide")])
-    wide, wcfg = loading.load_params(str(tmp_path / "wide.msgpack"))
-    assert dict(wcfg.model_overrides) == {"sample_mask": True}
-    model = recipe.model_for(wcfg)
-    frames, _ = seqdata.to_jax(seqdata.sequence(T=1, B=1, h=4, w=4, factor=2))
-    fr = seqdata.at(frames, 0)
-    want = kpn.step(params, kpn.init_state(fr, kpn.Config(factor=2)), fr,
-                    kpn.Config(factor=2))[0]
-    got = model.step(wide, model.init_state(fr), fr)[0]
-    np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=0, atol=1e-6)
-    with pytest.raises(SystemExit, match="already takes the sample mask"):
-        ks.main([str(tmp_path / "wide.msgpack"), "--out", str(tmp_path / "again")])
-    from jtus.models import mlp
-    other = checkpoint.write_params(str(tmp_path / "mlp"), mlp.init(
-        jax.random.PRNGKey(0), mlp.Config(factor=2)), config_mod.to_json(
-        Config(model="mlp", factor=2)))
-    with pytest.raises(SystemExit, match="expected a kpn checkpoint"):
-        ks.main([other, "--out", str(tmp_path / "no")])
-    assert not (tmp_path / "again.msgpack").exists() and not (tmp_path / "no.json").exists()
-
-
 @pytest.mark.parametrize("name,overrides", [
     ("kpn", (("current", "samples"), ("history", "clamped"))), ("nsrr-fast", ())])
 def test_checkpoint_switched_to_normalized_exposure_keeps_its_outputs(tmp_path, name,

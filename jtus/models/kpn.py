@@ -144,15 +144,21 @@ def _kernel_bias(kernel, config: Config):
     return {**kernel, "bias": jnp.broadcast_to(bias, kernel["bias"].shape)}
 
 
-def add_sample_mask(params):
-    """Parameters of a KPN without ``sample_mask`` for one with it that computes the
-    same outputs: the first convolution gains a zero weight for the mask channel (the
-    last input), so training starts from what the network already does."""
+def adapt_params(params, config: Config = Config(sample_mask=True)):
+    """Parameters of a KPN without the sample mask grown to ``config``'s inputs: the
+    first convolution gains a zero weight for the mask channel (channel
+    ``IN_CHANNELS``, after the others of the JAU mix), so the grown network computes
+    what the given one does until training moves it. Parameters that already fit are
+    returned as they are; ``python -m jtus.train --init-from`` calls this."""
     conv1 = params["conv1"]
     kernel = conv1["kernel"]
-    if kernel.shape[2] != IN_CHANNELS:
-        raise ValueError(f"params: conv1 takes {kernel.shape[2]} input channels, expected "
-                         f"{IN_CHANNELS} (a KPN without the sample mask)")
+    have, want = kernel.shape[2], config.in_channels()
+    if have == want:
+        return params
+    if (have, want) != (IN_CHANNELS, IN_CHANNELS + 1) or config.current != "jau":
+        raise ValueError(f"params: conv1 takes {have} input channels, this config takes "
+                         f"{want}; only the sample-mask channel is added to a KPN of the "
+                         f"JAU mix")
     zero = jnp.zeros(kernel.shape[:2] + (1,) + kernel.shape[3:], kernel.dtype)
     return {**params, "conv1": {**conv1, "kernel": jnp.concatenate([kernel, zero], 2)}}
 
@@ -311,12 +317,12 @@ def cost(config: Config, H, W) -> Cost:
 
 # trained with the paper's alias-masked loss (jtus.losses.kpn_loss)
 SPECS = (Spec("kpn", make, lambda f: Config(factor=f), cost, trainable=True, loss="kpn",
-              torch_reference="torch_kpn"),)
+              torch_reference="torch_kpn", adapt=adapt_params),)
 
 
 
 
 __all__ = ["COLOUR_INPUTS", "CURRENT", "Config", "EXPOSURE", "EXPOSURE_FLOOR", "HISTORY",
-           "SAMPLES_PRIOR", "SPECS", "State", "add_sample_mask", "clamp_history", "cost",
+           "SAMPLES_PRIOR", "SPECS", "State", "adapt_params", "clamp_history", "cost",
            "exposure_scale", "init", "init_state", "kernels", "make", "normalize_exposure",
            "phase_index", "prepare", "sample_mask", "step", "valid_taps"]
