@@ -691,3 +691,17 @@ def test_blend_scale_probe_is_the_model_at_one_and_keeps_the_history_at_zero(rng
     out0, _ = bs.scaled_entry(entry, 1e-9).model.step(params, state, frame)
     np.testing.assert_allclose(out0, state.history[..., :3], atol=1e-6)
     assert float(np.abs(np.asarray(want_out) - np.asarray(state.history[..., :3])).max()) > 1e-3
+
+
+@pytest.mark.long
+def test_donated_residual_pullbacks_give_autodiffs_gradients():
+    """experiments/donated_residuals.py: a window whose per-frame pullbacks are rebuilt
+    from donated buffers gives the gradients of ``jax.value_and_grad`` of
+    ``rollout.window_loss``, and each timed variant runs again after its first call (the
+    donated buffers handed back each step)."""
+    dr = seqdata.load_script("donated_residuals")
+    variants, mib, diff = dr.window(4, 16, 1, 2)
+    assert diff <= 1e-7 and mib > 0
+    assert set(variants) == {"autodiff", "pullbacks, donated", "pullbacks, fresh"}
+    for fn in variants.values():
+        fn()
