@@ -54,10 +54,12 @@ def test_scan_equals_python_loop_values_and_vjp(x64):
     def scanned(p, s):
         return rollout.outputs(model.step, p, s, frames)
 
+    step = jax.jit(model.step)  # one compiled step, called from a Python loop
+
     def looped(p, s):
         outs = []
         for t in range(5):
-            out, s = model.step(p, s, jax.tree_util.tree_map(lambda x: x[t], frames))
+            out, s = step(p, s, jax.tree_util.tree_map(lambda x: x[t], frames))
             outs.append(out)
         return jnp.stack(outs), s
 
