@@ -10,9 +10,10 @@ step, a training step); lowering to MLIR; tracing; what the persistent compilati
 cache saved and what reading it cost. Each process (each xdist worker) writes its rows
 to a folder shared through ``JTUS_COMPILE_PROFILE_DIR``; the process that reports
 (the xdist controller, or the only process with ``-n 0``) merges them into one JSON
-file (``--compile-profile-out``, default ``compile-profile.json``) and prints the
-totals and the files that spend most on compiling. Fixture setup and subprocesses
-(the CLI tests) are not counted. Results of a run: ``docs/results/test-suite/``.
+file (``--compile-profile-out``, default ``compile-profile.json``), removes the
+folder it made, and prints the totals and the files that spend most on compiling.
+Fixture setup and subprocesses (the CLI tests) are not counted. Results of a run:
+``docs/results/test-suite/``.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import collections
 import glob
 import json
 import os
+import shutil
 import tempfile
 import time
 
@@ -34,11 +36,9 @@ EVENTS = {"backend_compile_duration": "compile", "jaxpr_to_mlir_module_duration"
           "jaxpr_trace_duration": "trace", "compile_time_saved_sec": "cache_saved",
           "cache_retrieval_time_sec": "cache_read"}
 
-if ENV not in os.environ:  # the first process; xdist workers inherit the folder
-    os.environ[ENV] = tempfile.mkdtemp(prefix="jtus-compile-profile-")
-
 _current: dict = collections.Counter()
 _rows: list = []
+_made: list = []  # the folder this process made (and removes once it has merged the rows)
 
 
 def _on_duration(name, seconds, **_):
@@ -51,7 +51,13 @@ def _on_duration(name, seconds, **_):
         _current[f"{key}_s"] += seconds
 
 
-jax.monitoring.register_event_duration_secs_listener(_on_duration)
+def pytest_configure(config):
+    """Loaded as a plugin: listen to JAX's compile events; the first process (the xdist
+    controller, which starts its workers after this) makes the rows' folder."""
+    if ENV not in os.environ:
+        os.environ[ENV] = tempfile.mkdtemp(prefix="jtus-compile-profile-")
+        _made.append(os.environ[ENV])
+    jax.monitoring.register_event_duration_secs_listener(_on_duration)
 
 
 def pytest_addoption(parser):
@@ -100,6 +106,8 @@ def pytest_terminal_summary(terminalreporter, config):
     with open(out + ".tmp", "w") as f:
         json.dump(rows, f, indent=0)
     os.replace(out + ".tmp", out)
+    for folder in _made:
+        shutil.rmtree(folder, ignore_errors=True)
     total, files = summarize(rows)
     tr = terminalreporter
     tr.section("compile profile (tests.compile_profile)")

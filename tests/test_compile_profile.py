@@ -21,6 +21,8 @@ def test_compile_profile_counts_an_eager_operation_in_its_test(tmp_path):
     out = tmp_path / "prof.json"
     env = {k: v for k, v in os.environ.items() if k != compile_profile.ENV}
     env["PYTHONPATH"] = ROOT + os.pathsep + env.get("PYTHONPATH", "")
+    (tmp_path / "tmp").mkdir()
+    env["TMPDIR"] = str(tmp_path / "tmp")  # where the plugin makes its rows' folder
     res = subprocess.run(
         [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-n", "0",
          "-p", "tests.compile_profile", "--compile-profile-out", str(out),
@@ -37,6 +39,7 @@ def test_compile_profile_counts_an_eager_operation_in_its_test(tmp_path):
     assert "small_compiles" not in nothing
     assert "compile profile (tests.compile_profile)" in res.stdout
     assert "2 tests" in res.stdout and "(1)" in res.stdout
+    assert not list((tmp_path / "tmp").glob("jtus-compile-profile-*"))  # merged, removed
 
 
 def test_summarize_sums_per_file_and_orders_by_compile_time():
