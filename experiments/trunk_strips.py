@@ -31,8 +31,8 @@ def conv_band(x, k, b, top, bottom, valid=False):
     """3x3 convolution of a band of rows ``x [B,h,W,C]``: edge-padded in columns, and in
     rows edge-padded only where the band meets the image's ``top`` or ``bottom`` (a row
     is lost on each other side). SAME on the padded band, then cropped, as
-    ``layers.conv_edge`` does; ``valid``: the VALID convolution, which computes only the
-    kept values."""
+    ``layers.conv_edge_fast`` does under differentiation; ``valid``: the VALID
+    convolution, which computes only the kept values."""
     xp = jnp.pad(x, ((0, 0), (int(top), int(bottom)), (1, 1), (0, 0)), mode="edge")
     if valid:
         return layers.conv(xp, k, b, padding="VALID")

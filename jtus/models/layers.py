@@ -1,10 +1,11 @@
 """Convolutions for the networks, NHWC / HWIO, written for XLA:CPU's fast paths.
 
-On XLA:CPU edge-padded VALID convolutions are 2-3x slower than SAME ones (no XLA flag
+On XLA:CPU edge-padded VALID convolutions are 4-5x slower than SAME ones (no XLA flag
 helps: oneDNN, XNNPACK, the thunk runtime and Eigen threading were tried), so a
-replicate-padded 3x3 convolution is computed as edge pad by one, SAME convolution,
-crop by one (identical values, SAME speed). ``python experiments/conv_padding.py``
-measures both (docs/performance.md).
+replicate-padded 3x3 convolution is computed as the zero-padded SAME convolution plus
+the terms of the replicated one-pixel border ring (``conv_edge``), and, where its
+padded input is kept for a backward pass, as edge pad by one, SAME convolution, crop by
+one. ``python experiments/conv_padding.py`` measures the ways (docs/performance.md).
 """
 
 from __future__ import annotations
@@ -37,8 +38,49 @@ def _conv_edge_padded(x, kernel, bias):
 
 
 def conv_edge(x, kernel, bias=None):
-    """Stride-1 convolution with replicate ('edge') padding of (k-1)/2, k odd."""
+    """Stride-1 convolution with replicate ('edge') padding of (k-1)/2, k odd.
+
+    A 3x3 kernel runs as the SAME (zero-padded) convolution plus ``_edge_ring``: no
+    padded copy of ``x`` is made and none of the output is cropped, and XLA fuses the
+    ring's masks with the bias (and whatever elementwise work follows) into one pass;
+    DLCTUS's trunk took 0.73x the time of edge pad + SAME + crop at 1080p and 0.84x at
+    720p on a 2-core Intel Xeon (``python experiments/conv_padding.py``,
+    docs/results/conv_padding/). Other kernel
+    sizes pad, convolve and crop."""
+    if kernel.shape[:2] == (3, 3):
+        return conv(x, kernel, bias) + _edge_ring(x, kernel.astype(x.dtype))
     return _conv_edge_padded(x, kernel, bias)[0]
+
+
+def _edge_ring(x, kernel):
+    """``conv_edge(x, kernel) - conv(x, kernel)`` for a 3x3 ``kernel``: the taps that fall
+    on the one-pixel ring of replicated border pixels around ``x [B,H,W,C]``, which zero
+    padding leaves out. The ring's top row (its corners included) meets only kernel row 0
+    at output row 0, its bottom row kernel row 2 at row H-1, its left column (corners
+    excluded) kernel column 0 at column 0 and its right column kernel column 2 at column
+    W-1: four 1-D convolutions of border lines, each three small matmuls, placed on the
+    output's border by broadcast masks."""
+    h, w = x.shape[1:3]
+
+    def line(v):  # [B,n,C] -> [B,n+2,C], the line's own ends replicated
+        return jnp.concatenate([v[:, :1], v, v[:, -1:]], 1)
+
+    def inner(v):  # [B,n,C] -> [B,n+2,C], zeros at the ends (those are corners)
+        z = jnp.zeros_like(v[:, :1])
+        return jnp.concatenate([z, v, z], 1)
+
+    def conv1d(v, taps, n):  # taps [3,C,O] along the line
+        return sum(v[:, d:d + n] @ taps[d] for d in range(3))
+
+    top = conv1d(line(x[:, 0]), kernel[0], w)        # [B,W,O]
+    bottom = conv1d(line(x[:, -1]), kernel[2], w)
+    left = conv1d(inner(x[:, :, 0]), kernel[:, 0], h)  # [B,H,O]
+    right = conv1d(inner(x[:, :, -1]), kernel[:, 2], h)
+    row = jnp.arange(h)[:, None, None]
+    col = jnp.arange(w)[:, None]
+    return (jnp.where(row == 0, top[:, None], 0) + jnp.where(row == h - 1, bottom[:, None], 0)
+            + jnp.where(col == 0, left[:, :, None], 0)
+            + jnp.where(col == w - 1, right[:, :, None], 0))
 
 
 def scale_inputs(conv, channels, factor):
@@ -73,14 +115,14 @@ def torch_uniform_init(key, shape_hwio):
 
 
 def _edge_pad_adjoint(g, p):
-    """Adjoint of edge padding by ``p`` on H and W: fold the border back onto the edge."""
-    h, w = g.shape[1] - 2 * p, g.shape[2] - 2 * p
-    inner = g[:, p:p + h]
-    inner = inner.at[:, :1].add(g[:, :p].sum(1, keepdims=True))
-    inner = inner.at[:, -1:].add(g[:, p + h:].sum(1, keepdims=True))
-    out = inner[:, :, p:p + w]
-    out = out.at[:, :, :1].add(inner[:, :, :p].sum(2, keepdims=True))
-    return out.at[:, :, -1:].add(inner[:, :, p + w:].sum(2, keepdims=True))
+    """Adjoint of edge padding by ``p`` on H and W: fold the border back onto the edge.
+    ``pad_edge`` transposed by JAX (slices of ``g`` summed), which XLA:CPU fuses better
+    than adding the border rows and columns in place: the trunk's training gradient took
+    0.92-0.95x the time (``python experiments/conv_padding.py --train``,
+    docs/results/conv_padding-train-in-place-adjoint/)."""
+    b, h, w, c = g.shape
+    inner = jax.ShapeDtypeStruct((b, h - 2 * p, w - 2 * p, c), g.dtype)
+    return jax.linear_transpose(lambda v: pad_edge(v, p), inner)(g)[0]
 
 
 @jax.custom_vjp
@@ -93,8 +135,11 @@ def conv_edge_fast(x, kernel, bias):
     with the output gradient as its kernel, and the input gradient a SAME convolution
     with the flipped, transposed kernel followed by the adjoint of the edge padding,
     all in standard NHWC/HWIO layout through explicit transposes. The padded input is
-    the saved residual, so the backward does not pad again. Values and gradients equal
-    ``conv_edge``'s (tested in float64).
+    the saved residual, so the backward does not pad again: under differentiation the
+    forward pads, convolves and crops (``conv_edge``'s ring form, which saves ``x``
+    instead, made the training step no faster with this backward and slower with the
+    ring's own), and without differentiation it is ``conv_edge``. Values and gradients
+    equal ``conv_edge``'s (tested in float64).
     """
     return conv_edge(x, kernel, bias)
 
