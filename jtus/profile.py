@@ -188,7 +188,7 @@ def main(argv=None):
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--what", choices=("train", "infer"), default="train")
     p.add_argument("--model", default="dlctus", choices=models.NAMES,
-                   help="inference: any model (training profiles DLCTUS)")
+                   help="any model (training: any trainable one)")
     p.add_argument("--factor", type=int, default=2)
     p.add_argument("--size", choices=tuple(bench.SIZES), default="1080p", help="inference")
     p.add_argument("--crop", type=int, default=128)
@@ -201,11 +201,16 @@ def main(argv=None):
     args = p.parse_args(argv)
 
     if args.what == "train":
-        run, hlo, _ = bench.train_workload(args.factor, args.crop, args.batch, args.seq,
-                                           args.loss_frames, warp=args.warp)
-        workload = (f"the DLCTUS {args.factor}x training step (crop {args.crop}, batch "
-                    f"{args.batch}, {args.seq} frames, loss on the last {args.loss_frames}, "
-                    f"{args.warp} warp, Adam)")
+        if not models.spec(args.model).trainable:
+            p.error(f"--model: {args.model} has no training step (expected one of "
+                    f"{[n for n in models.NAMES if models.spec(n).trainable]})")
+        run, hlo, model = bench.train_workload(args.factor, args.crop, args.batch, args.seq,
+                                               args.loss_frames, warp=args.warp,
+                                               name=args.model)
+        warp = f", {args.warp} warp" if hasattr(model.config, "warp") else ""
+        workload = (f"the {args.model.upper()} {args.factor}x training step (crop {args.crop}, "
+                    f"batch {args.batch}, {args.seq} frames, loss on the last "
+                    f"{args.loss_frames}{warp}, its own loss, Adam)")
     else:
         over = {"warp": args.warp} if hasattr(models.spec(args.model).config(args.factor), "warp") \
             else {}

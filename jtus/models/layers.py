@@ -164,17 +164,57 @@ def _fast_bwd(res, g):
 conv_edge_fast.defvjp(_fast_fwd, _fast_bwd)
 
 
+def kernel_grad_by_matmuls(kernel_size, h, w, c_in, c_out):
+    """Whether ``_kernel_grad`` of a ``kernel_size`` square kernel over an ``h x w`` map
+    from ``c_in`` to ``c_out`` channels runs as matmuls: 3x3 kernels from 32 or more
+    channels to 16 or more on large maps, and on 64x64 maps from 128 or more channels;
+    the convolution elsewhere (small maps, DLCTUS's trunk, few channels in or out, KPN's
+    5x5 kernels). Set by ``python experiments/kernel_grad.py``
+    (docs/results/kernel-grad/): it picks the faster form on every shape timed there
+    but one (64x64, 32 to 64 channels: 0.91x as matmuls, kept as the convolution)."""
+    return (kernel_size == 3 and c_in >= 32 and c_out >= 16
+            and (h * w >= 128 * 128 or (h * w >= 64 * 64 and c_in >= 128)))
+
+
 def _kernel_grad(xp, g):
     """``dk[dy,dx,c,o] = sum_{b,y,x} xp[b,y+dy,x+dx,c] g[b,y,x,o]``, the kernel gradient
-    of a stride-1 VALID convolution of ``xp``: itself a VALID convolution, channels as
-    its batch and the batch as its features, with ``g`` as a ``[h,w,B,o]`` kernel. In
-    NHWC/HWIO layout (explicit transposes) XLA:CPU runs it 1.4x faster than one matmul
-    per kernel tap, whose ``[B*h*w,C]^T [B*h*w,C]`` shape it does at half the rate of
-    a convolution (docs/performance.md, "Training speed")."""
+    of a stride-1 VALID convolution of ``xp``.
+
+    On small maps (DLCTUS's trunk, 32x32 at crop 128) it is itself a VALID convolution,
+    channels as its batch and the batch as its features, with ``g`` as a ``[h,w,B,o]``
+    kernel: in NHWC/HWIO layout (explicit transposes) XLA:CPU runs it 1.4x faster than
+    one matmul per kernel tap, whose ``[B*h*w,C]^T [B*h*w,C]`` shape it does at half the
+    rate of a convolution (docs/performance.md, "Training speed"). On larger maps with
+    more channels (NSRR's U-Net at 128x128) that convolution's ``h x w`` kernel is slow,
+    and one matmul per tap of ``xp`` as it is, with ``g`` shifted into a zero-padded copy,
+    took 0.30-0.51x its time from 32 or more input channels
+    (``kernel_grad_by_matmuls``)."""
+    if kernel_grad_by_matmuls(xp.shape[1] - g.shape[1] + 1, g.shape[1], g.shape[2],
+                              xp.shape[-1], g.shape[-1]):
+        return kernel_grad_matmuls(xp, g)
+    return kernel_grad_conv(xp, g)
+
+
+def kernel_grad_conv(xp, g):
+    """``_kernel_grad`` as one VALID convolution, channels as the batch."""
     dk = jax.lax.conv_general_dilated(xp.transpose(3, 1, 2, 0),
                                       g.astype(xp.dtype).transpose(1, 2, 0, 3), (1, 1),
                                       "VALID", dimension_numbers=_DN)
     return dk.transpose(1, 2, 0, 3)
+
+
+def kernel_grad_matmuls(xp, g):
+    """``_kernel_grad`` as one ``xp^T g_shifted`` matmul per kernel tap, ``g`` placed at
+    the tap's offset in a zero-padded copy the size of ``xp``."""
+    b, h, w, o = g.shape
+    kh, kw = xp.shape[1] - h + 1, xp.shape[2] - w + 1
+    x2 = xp.reshape(-1, xp.shape[-1])
+    g = g.astype(xp.dtype)
+    taps = [jax.lax.dot_general(x2, jnp.pad(g, ((0, 0), (dy, kh - 1 - dy), (dx, kw - 1 - dx),
+                                                 (0, 0))).reshape(-1, o),
+                                (((0,), (0,)), ((), ())))
+            for dy in range(kh) for dx in range(kw)]
+    return jnp.stack(taps).reshape(kh, kw, xp.shape[-1], o)
 
 
 @jax.custom_vjp

@@ -42,8 +42,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from jtus.reference.inputs import random_frame
-from jtus.reference.torch_nsrr import zero_upsample
+from jtus.models import kpn  # its jitter phases only (which weight set a frame uses)
+from jtus.reference.inputs import random_frame, random_window
+from jtus.reference.torch_nsrr import warp, zero_upsample
 
 HIDDEN = 5
 
@@ -207,5 +208,60 @@ def infer_workload(config, size):
     def run():
         with torch.no_grad():
             _, fb[0] = step(net, fb[0], color, depth, motion, jitter, reset, phases, f)
+
+    return run
+
+
+def loss(out, target, prev_error, color, motion, jitter, f, weights=(1.0, 1.0, 4.0),
+         alias_boost=1.5, sensitivity=4.0):
+    """Herveau et al.'s training loss as jtus trains KPN with (its defaults, NCHW): the
+    alias mask ``M`` (the jitter-aligned input's summed channel error against the target,
+    scaled, clipped to [0, 1], max over 3x3) weighs by ``alias_boost M + 1 - M`` the
+    reference L1, the L1 of the x and y differences, and the L1 of the current error
+    against the previous one backward-warped (bilinear, zero outside; ``prev_error``
+    None on a window's first frame)."""
+    m = (sensitivity * (jau(color, jitter, f) - target).abs().sum(1, keepdim=True)).clamp(0, 1)
+    m = F.max_pool2d(m, 3, stride=1, padding=1)
+    wgt = alias_boost * m + (1 - m)
+    ref = (wgt * (out - target).abs()).mean()
+
+    def diffs(x):  # y and x differences on the [:-1, :-1] corner
+        return x[:, :, 1:, :-1] - x[:, :, :-1, :-1], x[:, :, :-1, 1:] - x[:, :, :-1, :-1]
+
+    (gy_o, gx_o), (gy_t, gx_t) = diffs(out), diffs(target)
+    grad = (wgt[:, :, :-1, :-1] * ((gy_o - gy_t).abs() + (gx_o - gx_t).abs())).mean()
+    x = out - target
+    y = torch.zeros_like(x) if prev_error is None else warp(prev_error, motion, f)
+    temporal = (wgt * (x - y).abs()).mean()
+    wr, wg, wt = weights
+    return wr * ref + wg * grad + wt * temporal
+
+
+def window_loss(net, frames, targets, f, loss_frames, phases):
+    """The mean of ``loss`` over the last ``loss_frames`` frames of a window of ``(color,
+    depth, motion, jitter, reset)`` frames from an empty history (``rollout.window_loss``
+    with jtus's ``kpn`` loss), with the graph for a backward pass; ``phases`` are the
+    jitter phases that select the weight sets."""
+    fb, prev_error, total, n = None, None, 0.0, len(frames)
+    for i, (color, depth, motion, jitter, reset) in enumerate(frames):
+        out, fb = step(net, fb, color, depth, motion, jitter, reset, phases, f)
+        if i >= n - loss_frames:
+            total = total + loss(out, targets[i], prev_error, color, motion, jitter, f)
+        prev_error = out - targets[i]
+    return total / loss_frames
+
+
+def train_workload(factor, crop, batch, seq, loss_frames):
+    """One BPTT training step (``window_loss``, Adam) on random crops as a callable, for
+    ``python -m jtus.bench``; the weight sets of the ``thesis`` jitter sequence's phases."""
+    frames, targets = random_window(factor, crop, batch, seq)
+    phases = torch.from_numpy(np.asarray(kpn.Config(factor=factor).phases(), np.float32))
+    net = KPN(len(phases))
+    opt = torch.optim.Adam(net.parameters(), lr=1e-4)
+
+    def run():
+        opt.zero_grad()
+        window_loss(net, frames, targets, factor, loss_frames, phases).backward()
+        opt.step()
 
     return run

@@ -27,7 +27,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from jtus.reference.inputs import random_frame
+from jtus.reference.inputs import random_frame, random_window
 
 FEATURES = 12
 
@@ -143,5 +143,32 @@ def infer_workload(config, size):
     def run():
         with torch.no_grad():
             _, prev[0] = step(net, prev[0], color, depth, motion, jitter, reset, f)
+
+    return run
+
+
+def window_loss(net, frames, targets, f, loss_frames, normalize=False):
+    """The mean over the last ``loss_frames`` frames of the L1 error (NSRR's training
+    loss in jtus, ``rollout.window_loss``) of a window of ``(color, depth, motion,
+    jitter, reset)`` frames from an empty history, with the graph for a backward pass."""
+    prev, total, n = [], 0.0, len(frames)
+    for i, (color, depth, motion, jitter, reset) in enumerate(frames):
+        out, prev = step(net, prev, color, depth, motion, jitter, reset, f, normalize)
+        if i >= n - loss_frames:
+            total = total + (out - targets[i]).abs().mean()
+    return total / loss_frames
+
+
+def train_workload(factor, crop, batch, seq, loss_frames):
+    """One BPTT training step (``window_loss``, Adam) on random crops as a callable, for
+    ``python -m jtus.bench``."""
+    frames, targets = random_window(factor, crop, batch, seq)
+    net = NSRR()
+    opt = torch.optim.Adam(net.parameters(), lr=1e-4)
+
+    def run():
+        opt.zero_grad()
+        window_loss(net, frames, targets, factor, loss_frames).backward()
+        opt.step()
 
     return run

@@ -92,20 +92,12 @@ def _phase_weights(d):
     return jnp.stack([(1 - t) * lo, (1 - t) * (1 - lo) + t * lo, t * (1 - lo)], -1)
 
 
-def _bilinear_phases(x, factor, wx, wy):
-    """Dense bilinear up-sampling by an integer factor when the sampling positions
-    repeat with period ``factor``: HR pixel ``f*J + p`` reads LR index ``J + d_p``.
-
-    ``wx``, ``wy`` ``[B,f,3]``: the weights of LR offsets -1, 0, 1 per phase (from
-    ``_phase_weights``). Border taps replicate the edge, as the warp does, so this
-    equals ``sample(..., "bilinear")`` at those positions, without gathers: three
-    shifted slices per axis, x first and then y (the warp's order). Gradients are
-    dense too (no scatter-add)."""
+def _one_sum(x, factor, wx, wy):
+    """``_bilinear_phases``'s value: one fusion writing ``[B,h,f,w,f,C]`` (row-major, so
+    the HR image is a reshape) in which every tap is a broadcast slice of the
+    edge-padded LR image, x first and then y (the warp's order). Stacking per-phase
+    results instead made XLA:CPU materialize them through slow concatenations."""
     b, h, w, c = x.shape
-    wx, wy = wx.astype(x.dtype), wy.astype(x.dtype)
-    # One fusion writing [B,h,f,w,f,C] (row-major, so the HR image is a reshape): every
-    # tap is a broadcast slice of the edge-padded LR image. Stacking per-phase results
-    # instead made XLA:CPU materialize them through slow concatenations.
     p = pad_edge(x, 1)
     out = 0
     for ky in range(3):
@@ -115,6 +107,57 @@ def _bilinear_phases(x, factor, wx, wy):
             row = row + tap * wx[:, None, None, None, :, kx, None]
         out = out + row * wy[:, None, :, None, None, ky, None]
     return out.reshape(b, h * factor, w * factor, c)
+
+
+def _two_passes(x, factor, wx, wy):
+    """The same values as a pass along x (every x phase of the padded rows) and then one
+    along y: the form ``_bilinear_phases`` differentiates."""
+    b, h, w, c = x.shape
+    p = pad_edge(x, 1)
+    row = 0  # [B,h+2,w,f,C]
+    for kx in range(3):
+        row = row + p[:, :, kx:kx + w, None, :] * wx[:, None, None, :, kx, None]
+    out = 0  # [B,h,f,w,f,C]
+    for ky in range(3):
+        out = out + row[:, ky:ky + h, None] * wy[:, None, :, None, None, ky, None]
+    return out.reshape(b, h * factor, w * factor, c)
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(1,))
+def _phases(x, factor, wx, wy):
+    return _one_sum(x, factor, wx, wy)
+
+
+def _phases_fwd(x, factor, wx, wy):
+    return _one_sum(x, factor, wx, wy), (x, wx, wy)
+
+
+def _phases_bwd(factor, res, g):
+    x, wx, wy = res
+    return jax.vjp(lambda *a: _two_passes(a[0], factor, *a[1:]), x, wx, wy)[1](g)
+
+
+_phases.defvjp(_phases_fwd, _phases_bwd)
+
+
+def _bilinear_phases(x, factor, wx, wy):
+    """Dense bilinear up-sampling by an integer factor when the sampling positions
+    repeat with period ``factor``: HR pixel ``f*J + p`` reads LR index ``J + d_p``.
+
+    ``wx``, ``wy`` ``[B,f,3]``: the weights of LR offsets -1, 0, 1 per phase (from
+    ``_phase_weights``). Border taps replicate the edge, as the warp does, so this
+    equals ``sample(..., "bilinear")`` at those positions, without gathers. Gradients
+    are dense too (no scatter-add).
+
+    The value is one sum of the nine taps (``_one_sum``); the gradients are those of
+    the same values computed in two passes (``_two_passes``). XLA:CPU (jaxlib 0.10.2)
+    compiles the one-sum form's jitted gradient into a YNNPACK reduction fusion that
+    returns wrong values, uninitialized memory among them, for batches above one or more
+    than a few channels (``tests/test_upsample_jitter.py::
+    test_jitted_gradient_of_bilinear_upsampling_equals_torch``); the two-pass gradient is
+    right and took a third of the time. The two-pass value is slower in DLCTUS's frame
+    (1080p 1.1x), so the value stays the one sum."""
+    return _phases(x, factor, wx.astype(x.dtype), wy.astype(x.dtype))
 
 
 def upsample(x, factor, method="bilinear", a=-0.75):

@@ -1,5 +1,6 @@
-"""Replicate-padded convolutions (``layers.conv_edge`` and ``conv_edge_fast``) against an
-independent form: ``jnp.pad(mode="edge")`` followed by a VALID convolution."""
+"""The networks' convolutions (``jtus.models.layers``): replicate-padded ones against an
+independent form, ``jnp.pad(mode="edge")`` followed by a VALID convolution, and both
+forms of the custom backward's kernel gradient against autodiff."""
 
 import jax
 import jax.numpy as jnp
@@ -56,3 +57,25 @@ def test_conv_edge_fast_forward_under_differentiation_equals_its_value(rng):
     plain = jax.jit(layers.conv_edge_fast)(x, k, b)
     under_vjp, _ = jax.vjp(layers.conv_edge_fast, x, k, b)
     np.testing.assert_allclose(under_vjp, plain, rtol=0, atol=1e-5 * float(jnp.abs(plain).max()))
+
+
+@pytest.mark.parametrize("side,c_in,c_out", [(8, 3, 4), (128, 32, 16)])
+def test_kernel_gradient_forms_equal_autodiff_float64(x64, rng, side, c_in, c_out):
+    """``kernel_grad_conv`` and ``kernel_grad_matmuls`` give autodiff's kernel gradient of
+    a VALID convolution, and the custom backwards (``conv_same_fast``, ``conv_edge_fast``)
+    the kernel gradient of plain autodiff, on a map where the convolution form is chosen
+    and on one where the matmuls are."""
+    xp = jnp.asarray(rng.normal(size=(2, side + 2, side + 2, c_in)))
+    g = jnp.asarray(rng.normal(size=(2, side, side, c_out)))
+    k = jnp.asarray(rng.normal(size=(3, 3, c_in, c_out)))
+    b = jnp.asarray(rng.normal(size=(c_out,)))
+    _, vjp = jax.vjp(lambda k: layers.conv(xp, k, padding="VALID"), k)
+    want = vjp(g)[0]
+    for form in (layers.kernel_grad_conv, layers.kernel_grad_matmuls):
+        np.testing.assert_allclose(form(xp, g), want, rtol=1e-12, atol=1e-10)
+    assert layers.kernel_grad_by_matmuls(3, side, side, c_in, c_out) == (side == 128)
+    x = xp[:, 1:-1, 1:-1]
+    for fast, plain in ((layers.conv_same_fast, layers.conv), (layers.conv_edge_fast, _reference)):
+        got = jax.vjp(lambda k: fast(x, k, b), k)[1](g)[0]
+        ref = jax.vjp(lambda k: plain(x, k, b), k)[1](g)[0]
+        np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-10)
