@@ -1,6 +1,6 @@
 """Training-step variants of DLCTUS timed against each other and against PyTorch, in
 one process, round-robin (a, b, c, ..., a, b, c, ...) so every variant sees the same
-machine; the ratios are what to read (docs/performance.md, "Training speed").
+machine; the ratios are what to read (docs/results/cpu-speed/result.md, "Training speed").
 
 Variants: the plain scan of ``step`` (the default), the same keeping the residuals of
 the network's down-sampling and output construction per frame instead of recomputing

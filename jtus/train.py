@@ -91,7 +91,7 @@ def make_train_step(model, loss_fn, optimizer, *, loss_frames, keep_at=None, rem
 
     ``hoist``: run the model's ``prepare`` before the scan (``rollout.window_loss``;
     the same values). Off by default: on XLA:CPU it measured no faster than scanning
-    the plain step (0.96-1.06x, docs/performance.md, "Training speed"). ``late``:
+    the plain step (0.96-1.06x, docs/results/cpu-speed/result.md, "Training speed"). ``late``:
     ``(index, loss)`` for the window's frames from ``index`` on (``rollout.window_loss``).
 
     ``mesh`` (``sharding.data_mesh``): each device runs the window on its part of the

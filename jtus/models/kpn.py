@@ -191,7 +191,7 @@ def _switched_conv(x, p, phase):
     """Per sample, the convolution with weight set ``phase[b]``: one convolution per
     batch element (a static loop). A ``vmap`` over per-sample kernels becomes a
     grouped convolution whose backward XLA:CPU runs about 10x slower than this in a
-    training scan (docs/performance.md, "Training speed")."""
+    training scan (docs/results/cpu-speed/result.md, "Training speed")."""
     return jnp.concatenate([layers.conv_same(x[i:i + 1], {"kernel": p["kernel"][phase[i]],
                                                           "bias": p["bias"][phase[i]]})
                             for i in range(x.shape[0])], 0)

@@ -184,7 +184,7 @@ def _kernel_grad(xp, g):
     channels as its batch and the batch as its features, with ``g`` as a ``[h,w,B,o]``
     kernel: in NHWC/HWIO layout (explicit transposes) XLA:CPU runs it 1.4x faster than
     one matmul per kernel tap, whose ``[B*h*w,C]^T [B*h*w,C]`` shape it does at half the
-    rate of a convolution (docs/performance.md, "Training speed"). On larger maps with
+    rate of a convolution (docs/results/cpu-speed/result.md, "Training speed"). On larger maps with
     more channels (NSRR's U-Net at 128x128) that convolution's ``h x w`` kernel is slow,
     and one matmul per tap of ``xp`` as it is, with ``g`` shifted into a zero-padded copy,
     took 0.30-0.51x its time from 32 or more input channels
