@@ -75,6 +75,16 @@ VARIANTS = {
 }
 
 
+def _timed_rows(fns, repeats, key, vs):
+    """Time ``fns`` in turn (ratios from one machine); the table rows and JSON records,
+    each against the first."""
+    sec = timing.timeit_round_robin(fns, repeats)
+    base = sec[next(iter(sec))]
+    rows = [f"| {name} | {1e3 * s:.1f} | {s / base:.2f}x |" for name, s in sec.items()]
+    data = [{key: name, "ms": 1e3 * s, vs: s / base} for name, s in sec.items()]
+    return rows, data
+
+
 def _edge_backward(xp, kernel, g):
     """The gradients of an edge-padded 3x3 convolution from its padded input ``xp``
     (``conv_edge_fast``'s backward, written out here so that both training forms share
@@ -136,10 +146,7 @@ def _train(args):
             err = float(jnp.abs(a - c).max() / jnp.abs(a).max())
             if err > 1e-4:
                 raise AssertionError(f"{name}: gradients differ by {err} (relative)")
-    sec = timing.timeit_round_robin(fns, args.repeats)
-    base = sec[next(iter(sec))]
-    rows = [f"| {name} | {1e3 * s:.1f} | {s / base:.2f}x |" for name, s in sec.items()]
-    data = [{"form": name, "ms": 1e3 * s, "vs_jtus": s / base} for name, s in sec.items()]
+    rows, data = _timed_rows(fns, args.repeats, "form", "vs_jtus")
     table = (f"Gradient of a loss over the trunk scanned over {args.frames} frames of "
              f"{args.batch}x{args.size[0]}x{args.size[1]}x32, medians of {args.repeats} "
              "round-robin repeats.\n\n| forward | ms | vs jtus |\n| --- | --- | --- |\n"
@@ -182,10 +189,7 @@ def main(argv=None):
 
         f = jax.jit(trunk)
         fns[name] = lambda f=f: f(x).block_until_ready()
-    sec = timing.timeit_round_robin(fns, args.repeats)  # in turn: ratios from one machine
-    base = sec[next(iter(sec))]
-    rows = [f"| {name} | {1e3 * s:.1f} | {s / base:.2f}x |" for name, s in sec.items()]
-    data = [{"padding": name, "ms": 1e3 * s, "vs_zero": s / base} for name, s in sec.items()]
+    rows, data = _timed_rows(fns, args.repeats, "padding", "vs_zero")
     table = (f"Trunk of 8 convolutions at {args.batch}x{args.size[0]}x{args.size[1]}x32, "
              f"medians of {args.repeats} round-robin repeats.\n\n"
              "| padding | ms | vs zero padding |\n"
