@@ -45,8 +45,7 @@ def conv_edge(x, kernel, bias=None):
     ring's masks with the bias (and whatever elementwise work follows) into one pass;
     DLCTUS's trunk took 0.73x the time of edge pad + SAME + crop at 1080p and 0.84x at
     720p on a 2-core Intel Xeon (``python experiments/conv_padding.py``,
-    docs/results/conv_padding/). Other kernel
-    sizes pad, convolve and crop."""
+    docs/results/conv_padding/). Other kernel sizes pad, convolve and crop."""
     if kernel.shape[:2] == (3, 3):
         return conv(x, kernel, bias) + _edge_ring(x, kernel.astype(x.dtype))
     return _conv_edge_padded(x, kernel, bias)[0]

@@ -1,6 +1,6 @@
-"""The random inputs the references' bench workloads share: jtus.bench's distribution
-(colour and jitter uniform, depth in [0.5, 1), motion normal with 0.5 LR pixels'
-spread), NCHW torch tensors."""
+"""What the references' bench workloads share: random inputs in jtus.bench's
+distribution (colour and jitter uniform, depth in [0.5, 1), motion normal with 0.5 LR
+pixels' spread) as NCHW torch tensors, and the Adam step of a training workload."""
 
 import numpy as np
 import torch
@@ -37,3 +37,16 @@ def random_window(factor, crop, batch, seq, device="cpu"):
               for i in range(seq)]
     targets = [t(r.uniform(size=(batch, 3, crop, crop))) for _ in range(seq)]
     return frames, targets
+
+
+def adam_step(net, window_loss):
+    """One training step as a callable: ``window_loss()`` (a scalar with its graph)
+    backward, then Adam (lr 1e-4, as jtus.bench's step) on ``net``'s parameters."""
+    opt = torch.optim.Adam(net.parameters(), lr=1e-4)
+
+    def run():
+        opt.zero_grad()
+        window_loss().backward()
+        opt.step()
+
+    return run

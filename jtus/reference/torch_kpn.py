@@ -43,7 +43,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from jtus.models import kpn  # its jitter phases only (which weight set a frame uses)
-from jtus.reference.inputs import random_frame, random_window
+from jtus.reference.inputs import adam_step, random_frame, random_window
 from jtus.reference.torch_nsrr import warp, zero_upsample
 
 HIDDEN = 5
@@ -257,11 +257,5 @@ def train_workload(factor, crop, batch, seq, loss_frames):
     frames, targets = random_window(factor, crop, batch, seq)
     phases = torch.from_numpy(np.asarray(kpn.Config(factor=factor).phases(), np.float32))
     net = KPN(len(phases))
-    opt = torch.optim.Adam(net.parameters(), lr=1e-4)
-
-    def run():
-        opt.zero_grad()
-        window_loss(net, frames, targets, factor, loss_frames, phases).backward()
-        opt.step()
-
-    return run
+    return adam_step(net, lambda: window_loss(net, frames, targets, factor, loss_frames,
+                                              phases))

@@ -27,7 +27,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from jtus.reference.inputs import random_frame, random_window
+from jtus.reference.inputs import adam_step, random_frame, random_window
 
 FEATURES = 12
 
@@ -164,11 +164,4 @@ def train_workload(factor, crop, batch, seq, loss_frames):
     ``python -m jtus.bench``."""
     frames, targets = random_window(factor, crop, batch, seq)
     net = NSRR()
-    opt = torch.optim.Adam(net.parameters(), lr=1e-4)
-
-    def run():
-        opt.zero_grad()
-        window_loss(net, frames, targets, factor, loss_frames).backward()
-        opt.step()
-
-    return run
+    return adam_step(net, lambda: window_loss(net, frames, targets, factor, loss_frames))

@@ -155,8 +155,9 @@ def _bilinear_phases(x, factor, wx, wy):
     returns wrong values, uninitialized memory among them, for batches above one or more
     than a few channels (``tests/test_upsample_jitter.py::
     test_jitted_gradient_of_bilinear_upsampling_equals_torch``); the two-pass gradient is
-    right and took a third of the time. The two-pass value is slower in DLCTUS's frame
-    (1080p 1.1x), so the value stays the one sum."""
+    right and took a third of the time (``docs/performance.md``, "Training the comparison
+    systems"). As a value the two-pass form measured slower in DLCTUS's inference frame,
+    so the value is the one sum."""
     return _phases(x, factor, wx.astype(x.dtype), wy.astype(x.dtype))
 
 
