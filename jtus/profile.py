@@ -1,7 +1,8 @@
-"""``python -m jtus.profile``: where a DLCTUS step spends its time, per XLA op.
+"""``python -m jtus.profile``: where a model's step spends its time, per XLA op.
 
-    python -m jtus.profile                                  # the bench's training step
+    python -m jtus.profile                                  # the bench's DLCTUS training step
     python -m jtus.profile --what infer --size 1080p --factor 4
+    python -m jtus.profile --model nsrr --factor 2          # any trainable model's step
     python -m jtus.profile --out docs/results/profile-cpu/profile-train-cpu  # .json and .md
 
 The step is the bench's workload (``jtus.bench.train_workload`` / ``infer_workload``),
@@ -9,10 +10,12 @@ jitted and warm. A few steps are traced; every XLA op the trace shows (a *thunk*
 XLA:CPU) is matched by name to its instruction in the compiled module, whose metadata
 says which JAX code made it. Ops are then summed by
 
-- **stage**: the named scope of ``jtus.models.dlctus.step`` they come from
-  (``input_upsampling``, ``reprojection``, ``network``, ``output``), the loss and the
-  optimizer (scopes in ``jtus.rollout`` and ``jtus.train``), or ``other`` (the scan's
-  own bookkeeping: stacking residuals, copies, loop control);
+- **stage**: the named scope of the model's step they come from (its ``Spec.stages``:
+  DLCTUS's ``input_upsampling``, ``reprojection``, ``network``, ``output``; NSRR's
+  ``feature_extraction``, ``reprojection``, ``reweighting``, ``reconstruction``; ...),
+  the loss and the optimizer (``TRAINING_STAGES``, scopes in ``jtus.rollout`` and
+  ``jtus.train``), or ``other`` (the scan's own bookkeeping: stacking residuals,
+  copies, loop control);
 - **pass**: ``forward`` or ``backward`` (ops made by transposition);
 - **kind**: convolution, matmul, gather, scatter, concatenate, copy/slice, elementwise
   fusion, reduction, other, and two kinds of a scan's bookkeeping: *fill* (materializing
@@ -41,9 +44,16 @@ import tempfile
 
 import jax
 
-from jtus import bench, cli, models, sampling, timing
+from jtus import bench, cli, files, models, sampling, timing
 
-STAGES = ("input_upsampling", "reprojection", "network", "output", "loss", "optimizer")
+TRAINING_STAGES = ("loss", "optimizer")
+TOP_OPS = 25  # the single ops a report lists (the largest), 10 of them in its markdown
+
+
+def stages_of(name):
+    """The stages a profile of model ``name`` files its ops under, in order: the named
+    scopes its step labels (``Spec.stages``), then the loss and the optimizer."""
+    return tuple(models.spec(name).stages) + TRAINING_STAGES
 _INSTR = re.compile(r"\s*(?:ROOT )?%?([\w.\-]+) = .*? ([a-z][\w\-]*)\(")
 _OPNAME = re.compile(r'op_name="([^"]+)"')
 _OPERAND = re.compile(r"%?([\w.\-]+)")
@@ -64,9 +74,10 @@ def hlo_ops(text):
     return out
 
 
-def classify(name, opcode, op_name, operand=""):
-    """(stage, pass, kind) of one op; ``operand``: the name of its first operand."""
-    stage = next((s for s in STAGES if f"/{s}/" in op_name or op_name.endswith("/" + s)),
+def classify(name, opcode, op_name, operand="", stages=stages_of("dlctus")):
+    """(stage, pass, kind) of one op; ``operand``: the name of its first operand;
+    ``stages``: the scope names to file it under (the first found in ``op_name``)."""
+    stage = next((s for s in stages if f"/{s}/" in op_name or op_name.endswith("/" + s)),
                  "other")
     pass_ = "backward" if "transpose(" in op_name else "forward"
     if "conv_general_dilated" in op_name and opcode in ("fusion", "convolution", "custom-call"):
@@ -126,11 +137,11 @@ def trace_ops(run, hlo_text, steps, logdir):
     return totals, ops, unmatched
 
 
-def summarize(totals, ops, steps):
+def summarize(totals, ops, steps, stages=stages_of("dlctus")):
     by = {k: collections.Counter() for k in ("stage", "pass", "kind", "stage_pass", "stage_kind")}
     top = []
     for name, ns in totals.items():
-        stage, pass_, kind = classify(name, *ops[name])
+        stage, pass_, kind = classify(name, *ops[name], stages=stages)
         op_name = ops[name][1]
         ms = ns / 1e6 / steps
         by["stage"][stage] += ms
@@ -143,19 +154,20 @@ def summarize(totals, ops, steps):
     return {"op_ms_per_step": sum(by["stage"].values()),
             **{k: dict(v.most_common()) for k, v in by.items()},
             "top_ops": [dict(ms=m, op=n, stage=s, pass_=p, kind=k, op_name=o)
-                        for m, n, s, p, k, o in top[:25]]}
+                        for m, n, s, p, k, o in top[:TOP_OPS]]}
 
 
-def profile(run, hlo_text, steps=3):
+def profile(run, hlo_text, steps=3, stages=stages_of("dlctus")):
     """Time ``run`` ``steps`` times (``timing.timeit``), then trace it as many times; returns
-    ``{"steps", "wall_ms" (median, untraced), "unmatched_events", "summary"}``."""
+    ``{"steps", "wall_ms" (median, untraced), "unmatched_events", "stages", "summary"}``,
+    the ops filed under ``stages`` (``stages_of``)."""
     wall = timing.timeit(run, steps)
     with tempfile.TemporaryDirectory() as logdir:
         totals, ops, unmatched = trace_ops(run, hlo_text, steps, logdir)
     if not totals:
         raise RuntimeError("the trace held no XLA ops that match the compiled module")
-    return {"steps": steps, "wall_ms": 1e3 * wall,
-            "unmatched_events": unmatched, "summary": summarize(totals, ops, steps)}
+    return {"steps": steps, "wall_ms": 1e3 * wall, "unmatched_events": unmatched,
+            "stages": list(stages), "summary": summarize(totals, ops, steps, stages)}
 
 
 def markdown(report):
@@ -168,7 +180,7 @@ def markdown(report):
              f"{report['steps']}); op spans summed {total:.1f} ms per step.", "",
              "| stage | forward ms | backward ms | share |",
              "| --- | --- | --- | --- |"]
-    for stage in STAGES + ("other",):
+    for stage in tuple(report.get("stages", stages_of("dlctus"))) + ("other",):
         f = s["stage_pass"].get(f"{stage}/forward", 0.0)
         b = s["stage_pass"].get(f"{stage}/backward", 0.0)
         if f or b:
@@ -179,7 +191,19 @@ def markdown(report):
               "| stage / pass / kind | ms | share |", "| --- | --- | --- |"]
     lines += [f"| {k} | {v:.1f} | {100 * v / total:.0f}% |"
               for k, v in list(s["stage_kind"].items())[:12]]
+    lines += ["", "Largest single ops (summed over a step's loop iterations; the JAX "
+              "operation that made each, from the compiled module's metadata):", "",
+              "| op | stage / pass / kind | ms | share | made by |",
+              "| --- | --- | --- | --- | --- |"]
+    lines += [f"| {o['op']} | {o['stage']}/{o['pass_']}/{o['kind']} | {o['ms']:.1f} | "
+              f"{100 * o['ms'] / total:.0f}% | `{_short(o['op_name'])}` |"
+              for o in s["top_ops"][:10]]
     return "\n".join(lines)
+
+
+def _short(op_name, parts=3):
+    """The last ``parts`` components of an op's JAX name (``.../network/conv_general_dilated``)."""
+    return "/".join(op_name.split("/")[-parts:]) if op_name else "-"
 
 
 def main(argv=None):
@@ -199,6 +223,14 @@ def main(argv=None):
     p.add_argument("--steps", type=int, default=3, help="steps traced and timed")
     p.add_argument("--out", help="write OUT.json and OUT.md")
     args = p.parse_args(argv)
+    if args.steps < 1:
+        p.error(f"--steps: expected a positive count, got {args.steps}")
+    if args.out:
+        for suffix in (".json", ".md"):
+            try:
+                files.check_out_file(args.out + suffix, field="--out", kind="a file stem")
+            except ValueError as e:
+                p.error(str(e))
 
     if args.what == "train":
         if not models.spec(args.model).trainable:
@@ -221,13 +253,12 @@ def main(argv=None):
     run()  # compile
     report = {"hardware": timing.hardware(), "workload": workload,
               "command": "python -m jtus.profile " + " ".join(argv),
-              **profile(run, hlo(), args.steps)}
+              **profile(run, hlo(), args.steps, stages_of(args.model))}
     md = markdown(report)
     if args.out:
-        with open(args.out + ".json", "w") as fh:
-            json.dump(report, fh, indent=1)
-        with open(args.out + ".md", "w") as fh:
-            fh.write(md + "\n")
+        for suffix, text in ((".json", json.dumps(report, indent=1)), (".md", md + "\n")):
+            with files.atomic_path(args.out + suffix) as tmp, open(tmp, "w") as fh:
+                fh.write(text)
     print(md)
     return 0
 

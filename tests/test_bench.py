@@ -152,3 +152,57 @@ def test_bench_train_preset_sets_the_recipe_workload(capsys):
     with pytest.raises(SystemExit):
         bench_cli.main(["--what", "train", "--train-preset", "nope", "--no-torch"])
     assert "--train-preset: invalid choice" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name", [n for n in models.NAMES
+                                  if models.spec(n).stages and n != "dlctus"])
+def test_each_model_labels_the_stages_the_profile_files_its_ops_under(name):
+    """Every stage a model declares (``Spec.stages``) is a named scope in its step's HLO,
+    and nearly every op is in one: ``python -m jtus.profile --model NAME`` then splits
+    the step by stage rather than filing it under "other". DLCTUS's own labels are
+    checked op by op in ``tests/test_rollout.py``."""
+    import re
+
+    import jax
+
+    from jtus import profile
+    from jtus.bench.workloads import random_frame
+
+    model = models.build(name, 2)
+    params = model.init(jax.random.PRNGKey(0))
+    frame = random_frame(8, 8)
+    state = model.init_state(frame)
+    hlo = jax.jit(model.step).lower(params, state, frame).as_text(dialect="hlo",
+                                                                  debug_info=True)
+    for stage in models.spec(name).stages:
+        assert f"/{stage}/" in hlo, stage
+    ops = re.findall(r'op_name="(jit\([^"]*)"', hlo)
+    stages = profile.stages_of(name)
+    outside = [op for op in ops if profile.classify("", "", op, stages=stages)[0] == "other"]
+    assert len(ops) > 20 and len(outside) <= 0.05 * len(ops), sorted(set(outside))
+    # control: the same ops filed under another model's stages miss most of them
+    if set(stages) - set(profile.stages_of("dlctus")):
+        assert sum(profile.classify("", "", op)[0] == "other" for op in ops) > len(outside)
+
+
+def test_profile_markdown_lists_the_models_stages_and_its_largest_ops():
+    """The report's markdown has a row per stage the model declared (in its order, then
+    "other") and the largest single ops with the JAX operation that made each."""
+    from jtus import profile
+
+    top = [dict(ms=3.0, op="fusion.1", stage="reconstruction", pass_="forward",
+                kind="convolution",
+                op_name="jit(f)/while/body/reconstruction/conv_general_dilated")]
+    report = {"workload": "w", "hardware": {"cpu": "c", "cores": 2, "jax": "0"}, "command": "x",
+              "steps": 1, "wall_ms": 5.0, "stages": list(profile.stages_of("nsrr")),
+              "summary": {"op_ms_per_step": 4.0,
+                          "stage_pass": {"reconstruction/forward": 3.0, "other/forward": 1.0},
+                          "kind": {"convolution": 3.0, "other": 1.0},
+                          "stage_kind": {"reconstruction/forward/convolution": 3.0},
+                          "top_ops": top}}
+    md = profile.markdown(report)
+    rows = [line.split(" | ")[0][2:] for line in md.splitlines()
+            if line.startswith("| ") and line.count("|") == 5 and "%" in line]
+    assert rows[:2] == ["reconstruction", "other"]
+    assert "| fusion.1 | reconstruction/forward/convolution | 3.0 | 75% | " \
+           "`body/reconstruction/conv_general_dilated` |" in md

@@ -59,22 +59,26 @@ def test_conv_edge_fast_forward_under_differentiation_equals_its_value(rng):
     np.testing.assert_allclose(under_vjp, plain, rtol=0, atol=1e-5 * float(jnp.abs(plain).max()))
 
 
-@pytest.mark.parametrize("side,c_in,c_out", [(8, 3, 4), (128, 32, 16)])
-def test_kernel_gradient_forms_equal_autodiff_float64(x64, rng, side, c_in, c_out):
-    """``kernel_grad_conv`` and ``kernel_grad_matmuls`` give autodiff's kernel gradient of
-    a VALID convolution, and the custom backwards (``conv_same_fast``, ``conv_edge_fast``)
-    the kernel gradient of plain autodiff, on a map where the convolution form is chosen
-    and on one where the matmuls are."""
-    xp = jnp.asarray(rng.normal(size=(2, side + 2, side + 2, c_in)))
+@pytest.mark.parametrize("kernel,side,c_in,c_out,form", [(3, 8, 3, 4, "conv"),
+                                                          (3, 128, 32, 16, "taps"),
+                                                          (5, 64, 4, 40, "columns")])
+def test_kernel_gradient_forms_equal_autodiff_float64(x64, rng, kernel, side, c_in, c_out,
+                                                      form):
+    """``kernel_grad_conv``, ``kernel_grad_matmuls`` and ``kernel_grad_columns`` give
+    autodiff's kernel gradient of a VALID convolution, and the custom backwards
+    (``conv_same_fast``, ``conv_edge_fast``) the kernel gradient of plain autodiff, on a
+    map where each form is the one chosen."""
+    p = kernel // 2
+    xp = jnp.asarray(rng.normal(size=(2, side + 2 * p, side + 2 * p, c_in)))
     g = jnp.asarray(rng.normal(size=(2, side, side, c_out)))
-    k = jnp.asarray(rng.normal(size=(3, 3, c_in, c_out)))
+    k = jnp.asarray(rng.normal(size=(kernel, kernel, c_in, c_out)))
     b = jnp.asarray(rng.normal(size=(c_out,)))
     _, vjp = jax.vjp(lambda k: layers.conv(xp, k, padding="VALID"), k)
     want = vjp(g)[0]
-    for form in (layers.kernel_grad_conv, layers.kernel_grad_matmuls):
-        np.testing.assert_allclose(form(xp, g), want, rtol=1e-12, atol=1e-10)
-    assert layers.kernel_grad_by_matmuls(3, side, side, c_in, c_out) == (side == 128)
-    x = xp[:, 1:-1, 1:-1]
+    for fn in (layers.kernel_grad_conv, layers.kernel_grad_matmuls, layers.kernel_grad_columns):
+        np.testing.assert_allclose(fn(xp, g), want, rtol=1e-12, atol=1e-10)
+    assert layers.kernel_grad_form(kernel, side, side, c_in, c_out) == form
+    x = xp[:, p:side + p, p:side + p]
     for fast, plain in ((layers.conv_same_fast, layers.conv), (layers.conv_edge_fast, _reference)):
         got = jax.vjp(lambda k: fast(x, k, b), k)[1](g)[0]
         ref = jax.vjp(lambda k: plain(x, k, b), k)[1](g)[0]

@@ -10,7 +10,7 @@ import optax
 import pytest
 from jax.test_util import check_grads
 
-from jtus import losses, rollout, sampling, train
+from jtus import losses, models, rollout, sampling, train
 from jtus.models import dlctus
 from jtus.models.base import DTYPES, param_count
 from tests import seqdata
@@ -302,7 +302,7 @@ def test_network_computes_in_its_dtype(formulation):
 
 def test_step_labels_its_stages_for_the_profile():
     """The step's operations (its lowered HLO) carry the stage scopes ``python -m jtus.profile``
-    splits the time by (``profile.STAGES``: input up-sampling, reprojection, network,
+    splits the time by (``Spec.stages``: input up-sampling, reprojection, network,
     output). Catches: a renamed scope, whose time the profile would file under "other"."""
     from jtus import profile
 
@@ -314,7 +314,9 @@ def test_step_labels_its_stages_for_the_profile():
     # reads back the original's names; found by mutation testing)
     hlo = jax.jit(model.step).lower(params, state, frame).as_text(dialect="hlo",
                                                                   debug_info=True)
-    for stage in profile.STAGES[:4]:
+    assert models.spec("dlctus").stages == (
+        "input_upsampling", "reprojection", "network", "output")
+    for stage in models.spec("dlctus").stages:
         assert f"/{stage}/" in hlo, stage
     assert "/loss/" not in hlo  # control: a stage the step does not run is absent
     # every operation is in a stage but the slice that takes the RGB out of the new

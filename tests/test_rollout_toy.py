@@ -328,7 +328,7 @@ def test_float32_window_loss_stays_float32_with_64_bit_types_on(mode):
 
 def test_loss_ops_carry_the_profilers_stage_name():
     """``jtus.profile`` attributes a training step's ops to stages by their scope names
-    (``profile.STAGES``): the window loss's ops are in the ``loss`` scope, the hoisted
+    (``profile.TRAINING_STAGES``): the window loss's ops are in the ``loss`` scope, the hoisted
     preparation's in ``prepare``."""
     from jtus import profile
 
@@ -337,7 +337,7 @@ def test_loss_ops_carry_the_profilers_stage_name():
     hlo = jax.jit(lambda p: rollout.window_loss(_advance, _loss, p, c0, frames, targets,
                                                 loss_frames=2, prepare=_prepare)[0]).lower(
         _params()).as_text(debug_info=True)
-    assert "loss" in profile.STAGES
+    assert "loss" in profile.TRAINING_STAGES
     names = set(re.findall(r'loc\("([^"]+)"', hlo))    # the ops' scoped names
     assert any(n.split("/")[0] == "loss" or "/loss/" in n for n in names)
     assert any("/prepare/" in n for n in names)

@@ -147,6 +147,8 @@ class Spec(NamedTuple):
     shipped: bool = False               # weights ship as jtus/weights/<name>-x<f>.msgpack
     adapt: Optional[Callable] = None    # (params, config) -> params grown to the config's
                                         # inputs (a fine-tune of another design's weights)
+    stages: tuple = ()                  # the named scopes its step labels its stages with,
+                                        # in order (python -m jtus.profile)
 
 
 def compute_dtype(name):

@@ -485,7 +485,9 @@ EXPORT = ExportIO(names=("history",), shapes=lambda config, H, W: ((1, H, W, 4),
                   to_arrays=lambda state: (state.history,), from_arrays=State,
                   onnx_graph=dlctus_onnx.build)
 
-SPECS = (Spec("dlctus", make, lambda f: Config(factor=f), cost, trainable=True,
+STAGES = ("input_upsampling", "reprojection", "network", "output")
+
+SPECS = (Spec("dlctus", make, lambda f: Config(factor=f), cost, trainable=True, stages=STAGES,
               dtypes=("float32", "bfloat16", "float16"), formulations=FORMULATIONS, kernels=KERNELS,
               network=network_workload, torch_checkpoint=load_torch_checkpoint,
               torch_state_dict=params_to_torch, torch_reference="torch_dlctus",

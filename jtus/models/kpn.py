@@ -200,27 +200,33 @@ def _switched_conv(x, p, phase):
 def prepare(state: State, frame: Frame, config: Config):
     f = config.factor
     jit = frame.jitter.astype(jnp.float32)
-    jau = sampling.jitter_aligned_upsample(frame.color.astype(jnp.float32), jit, f)
-    mv = f * sampling.upsample(frame.motion.astype(jnp.float32), f)
-    depth = sampling.upsample(linearize_depth(frame.depth.astype(jnp.float32), config.near,
-                                              config.far), f)
-    xy = sampling.reproject_coords(frame.motion.astype(jnp.float32), f)
-    rep, inside = sampling.sample(state.history, xy, "catmull_rom", return_mask=True)
-    rep = jnp.where(inside, rep, 0.0)
-    # a reset frame's history is the fresh input, unwarped (base.reset_select)
-    fresh = jnp.concatenate([jau, jnp.zeros(jau.shape[:-1] + (HIDDEN,), jnp.float32)], -1)
-    rep = reset_select(frame.reset, fresh, rep)
-    if config.history == "clamped":
-        rep = clamp_history(rep, frame, config)
-    scale = exposure_scale(frame, config)
-    parts = [jau * scale, depth, mv, rep[..., :3] * scale, rep[..., 3:]]
-    if config.marks_samples():
-        parts.append(sample_mask(frame, config))
-    cur = jau
-    if config.current == "samples":
-        cur = sampling.zero_upsample(frame.color.astype(jnp.float32), jit, f)
-        parts.append(cur * scale)
-    return jnp.concatenate(parts, -1), cur, rep
+    # The named scopes label the HLO for profiles (``Spec.stages``, python -m jtus.profile).
+    with jax.named_scope("input_upsampling"):
+        jau = sampling.jitter_aligned_upsample(frame.color.astype(jnp.float32), jit, f)
+        mv = f * sampling.upsample(frame.motion.astype(jnp.float32), f)
+        depth = sampling.upsample(linearize_depth(frame.depth.astype(jnp.float32),
+                                                  config.near, config.far), f)
+        cur = jau
+        if config.current == "samples":
+            cur = sampling.zero_upsample(frame.color.astype(jnp.float32), jit, f)
+    with jax.named_scope("reprojection"):
+        xy = sampling.reproject_coords(frame.motion.astype(jnp.float32), f)
+        rep, inside = sampling.sample(state.history, xy, "catmull_rom", return_mask=True)
+        rep = jnp.where(inside, rep, 0.0)
+        # a reset frame's history is the fresh input, unwarped (base.reset_select)
+        fresh = jnp.concatenate([jau, jnp.zeros(jau.shape[:-1] + (HIDDEN,), jnp.float32)], -1)
+        rep = reset_select(frame.reset, fresh, rep)
+        if config.history == "clamped":
+            rep = clamp_history(rep, frame, config)
+    with jax.named_scope("network"):  # its input
+        scale = exposure_scale(frame, config)
+        parts = [jau * scale, depth, mv, rep[..., :3] * scale, rep[..., 3:]]
+        if config.marks_samples():
+            parts.append(sample_mask(frame, config))
+        if config.current == "samples":
+            parts.append(cur * scale)
+        x = jnp.concatenate(parts, -1)
+    return x, cur, rep
 
 
 def exposure_scale(frame: Frame, config: Config):
@@ -276,11 +282,15 @@ def valid_taps(x, config: Config):
 
 def step(params, state: State, frame: Frame, config: Config = Config()):
     x, cur, rep = prepare(state, frame, config)
-    wts, hidden = kernels(params, x, phase_index(frame.jitter, config), valid_taps(x, config))
+    with jax.named_scope("network"):
+        wts, hidden = kernels(params, x, phase_index(frame.jitter, config),
+                              valid_taps(x, config))
     n = K * K
-    out = (sampling.filter_neighbourhood(cur, wts[..., :n], K, mode="constant")
-           + sampling.filter_neighbourhood(rep[..., :3], wts[..., n:], K, mode="constant"))
-    return out, State(jnp.concatenate([out, hidden], -1))
+    with jax.named_scope("output"):
+        out = (sampling.filter_neighbourhood(cur, wts[..., :n], K, mode="constant")
+               + sampling.filter_neighbourhood(rep[..., :3], wts[..., n:], K, mode="constant"))
+        new = State(jnp.concatenate([out, hidden], -1))
+    return out, new
 
 
 def init_state(frame: Frame, config: Config = Config()) -> State:
@@ -316,13 +326,15 @@ def cost(config: Config, H, W) -> Cost:
 
 
 # trained with the paper's alias-masked loss (jtus.losses.kpn_loss)
+STAGES = ("input_upsampling", "reprojection", "network", "output")
+
 SPECS = (Spec("kpn", make, lambda f: Config(factor=f), cost, trainable=True, loss="kpn",
-              torch_reference="torch_kpn", adapt=adapt_params),)
+              torch_reference="torch_kpn", adapt=adapt_params, stages=STAGES),)
 
 
 
 
 __all__ = ["COLOUR_INPUTS", "CURRENT", "Config", "EXPOSURE", "EXPOSURE_FLOOR", "HISTORY",
-           "SAMPLES_PRIOR", "SPECS", "State", "adapt_params", "clamp_history", "cost",
+           "SAMPLES_PRIOR", "SPECS", "STAGES", "State", "adapt_params", "clamp_history", "cost",
            "exposure_scale", "init", "init_state", "kernels", "make", "normalize_exposure",
            "phase_index", "prepare", "sample_mask", "step", "valid_taps"]

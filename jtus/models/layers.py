@@ -163,34 +163,56 @@ def _fast_bwd(res, g):
 conv_edge_fast.defvjp(_fast_fwd, _fast_bwd)
 
 
-def kernel_grad_by_matmuls(kernel_size, h, w, c_in, c_out):
-    """Whether ``_kernel_grad`` of a ``kernel_size`` square kernel over an ``h x w`` map
-    from ``c_in`` to ``c_out`` channels runs as matmuls: 3x3 kernels from 32 or more
-    channels to 16 or more on large maps, and on 64x64 maps from 128 or more channels;
-    the convolution elsewhere (small maps, DLCTUS's trunk, few channels in or out, KPN's
-    5x5 kernels). Set by ``python experiments/kernel_grad.py``
-    (docs/results/kernel-grad/): it picks the faster form on every shape timed there
-    but one (64x64, 32 to 64 channels: 0.91x as matmuls, kept as the convolution)."""
-    return (kernel_size == 3 and c_in >= 32 and c_out >= 16
-            and (h * w >= 128 * 128 or (h * w >= 64 * 64 and c_in >= 128)))
+KERNEL_GRAD_FORMS = {"conv": "convolution", "taps": "matmul per tap",
+                     "columns": "matmul per column"}
+
+
+def kernel_grad_form(kernel_size, h, w, c_in, c_out):
+    """How ``_kernel_grad`` computes the gradient of a ``kernel_size`` square kernel over
+    an ``h x w`` map from ``c_in`` to ``c_out`` channels (a key of ``KERNEL_GRAD_FORMS``):
+
+    - ``"taps"``, one matmul per kernel tap: 3x3 kernels from 32 or more channels to 16
+      or more on 128x128 maps or larger, and from 128 or more channels on 64x64 maps;
+    - ``"columns"``, one matmul per kernel column, on the other maps of 64x64 or more
+      to 32 or more channels that are not a multiple of 16 (KPN's 5x5 layer to 50
+      channels), where the convolution form falls off XLA:CPU's fast path (2.7x the
+      column form's time alone; KPN's training step about 0.96x with it);
+    - ``"conv"``, the convolution, everywhere else (small maps, DLCTUS's 32x32 trunk,
+      few channels out, multiples of 16 out). Timed alone, the column form was faster
+      on two of NSRR's layers too (its 64x64 level, its reweighting's first layer), but
+      NSRR's and NSRR-fast's training steps with it there were no faster, within the
+      spread of identical programs timed side by side.
+
+    Set by ``python experiments/kernel_grad.py`` (docs/results/kernel-grad/), which times
+    the three at DLCTUS's, NSRR's and KPN's training shapes."""
+    big = h * w >= 128 * 128 or (h * w >= 64 * 64 and c_in >= 128)
+    if kernel_size == 3 and c_in >= 32 and c_out >= 16 and big:
+        return "taps"
+    if c_out >= 32 and c_out % 16 and h * w >= 64 * 64:
+        return "columns"
+    return "conv"
 
 
 def _kernel_grad(xp, g):
     """``dk[dy,dx,c,o] = sum_{b,y,x} xp[b,y+dy,x+dx,c] g[b,y,x,o]``, the kernel gradient
-    of a stride-1 VALID convolution of ``xp``.
+    of a stride-1 VALID convolution of ``xp``, in the form ``kernel_grad_form`` picks.
 
     On small maps (DLCTUS's trunk, 32x32 at crop 128) it is itself a VALID convolution,
     channels as its batch and the batch as its features, with ``g`` as a ``[h,w,B,o]``
     kernel: in NHWC/HWIO layout (explicit transposes) XLA:CPU runs it 1.4x faster than
     one matmul per kernel tap, whose ``[B*h*w,C]^T [B*h*w,C]`` shape it does at half the
-    rate of a convolution (docs/results/cpu-speed/result.md, "Training speed"). On larger maps with
-    more channels (NSRR's U-Net at 128x128) that convolution's ``h x w`` kernel is slow,
-    and one matmul per tap of ``xp`` as it is, with ``g`` shifted into a zero-padded copy,
-    took 0.30-0.51x its time from 32 or more input channels
-    (``kernel_grad_by_matmuls``)."""
-    if kernel_grad_by_matmuls(xp.shape[1] - g.shape[1] + 1, g.shape[1], g.shape[2],
-                              xp.shape[-1], g.shape[-1]):
+    rate of a convolution (docs/results/cpu-speed/result.md, "Training speed"). On larger
+    maps that convolution's ``h x w`` kernel is slow, the more so the more channels it
+    writes: from 32 or more input channels on 128x128 maps (NSRR's U-Net) one matmul per
+    tap of ``xp`` as it is, with ``g`` shifted into a zero-padded copy, is faster, and
+    to channel counts off XLA:CPU's fast path (KPN's 5x5 kernel layer to 50) one matmul
+    per kernel column of the row-shifted copies of ``xp``."""
+    form = kernel_grad_form(xp.shape[1] - g.shape[1] + 1, g.shape[1], g.shape[2],
+                            xp.shape[-1], g.shape[-1])
+    if form == "taps":
         return kernel_grad_matmuls(xp, g)
+    if form == "columns":
+        return kernel_grad_columns(xp, g)
     return kernel_grad_conv(xp, g)
 
 
@@ -200,6 +222,21 @@ def kernel_grad_conv(xp, g):
                                       g.astype(xp.dtype).transpose(1, 2, 0, 3), (1, 1),
                                       "VALID", dimension_numbers=_DN)
     return dk.transpose(1, 2, 0, 3)
+
+
+def kernel_grad_columns(xp, g):
+    """``_kernel_grad`` as one matmul per kernel column: the ``kh`` row-shifted views of
+    ``xp`` at that column's offset, side by side as ``kh * C`` channels, contracted
+    with ``g`` over every pixel: ``[B*h*w, kh*C]^T [B*h*w, o]``."""
+    b, h, w, o = g.shape
+    kh, kw = xp.shape[1] - h + 1, xp.shape[2] - w + 1
+    g2 = g.astype(xp.dtype).reshape(-1, o)
+    cols = []
+    for dx in range(kw):
+        rows = jnp.concatenate([xp[:, dy:dy + h, dx:dx + w] for dy in range(kh)], -1)
+        cols.append(jax.lax.dot_general(rows.reshape(-1, rows.shape[-1]), g2,
+                                        (((0,), (0,)), ((), ()))).reshape(kh, -1, o))
+    return jnp.stack(cols, 1)
 
 
 def kernel_grad_matmuls(xp, g):

@@ -122,21 +122,25 @@ def patches(frame: Frame, config: Config):
 
 
 def step(params, state, frame: Frame, config: Config = Config()):
-    x, cmean, scale = patches(frame, config)
-    for i, lyr in enumerate(params["layers"]):
-        x = x @ lyr["kernel"] + lyr["bias"]
-        if i < len(params["layers"]) - 1:
-            x = jax.nn.leaky_relu(x, config.slope)
-    if config.contrast:
-        x = x * scale
-    out = x + cmean if config.base == "mean" else x     # [B,h,w,3,f*f]
-    b, h, w = frame.color.shape[:3]
-    out = out.reshape(b, h, w, 3 * config.factor ** 2)  # channel c*f*f + sub-pixel
-    out = sampling.pixel_shuffle(out, config.factor)
-    if config.base == "jau":
-        out = out + sampling.jitter_aligned_upsample(frame.color.astype(jnp.float32),
-                                                     frame.jitter.astype(jnp.float32),
-                                                     config.factor)
+    # The named scopes label the HLO for profiles (``Spec.stages``, python -m jtus.profile).
+    with jax.named_scope("patches"):
+        x, cmean, scale = patches(frame, config)
+    with jax.named_scope("network"):
+        for i, lyr in enumerate(params["layers"]):
+            x = x @ lyr["kernel"] + lyr["bias"]
+            if i < len(params["layers"]) - 1:
+                x = jax.nn.leaky_relu(x, config.slope)
+    with jax.named_scope("output"):
+        if config.contrast:
+            x = x * scale
+        out = x + cmean if config.base == "mean" else x     # [B,h,w,3,f*f]
+        b, h, w = frame.color.shape[:3]
+        out = out.reshape(b, h, w, 3 * config.factor ** 2)  # channel c*f*f + sub-pixel
+        out = sampling.pixel_shuffle(out, config.factor)
+        if config.base == "jau":
+            out = out + sampling.jitter_aligned_upsample(frame.color.astype(jnp.float32),
+                                                         frame.jitter.astype(jnp.float32),
+                                                         config.factor)
     return out, state
 
 
@@ -166,4 +170,7 @@ def cost(config: Config, H, W) -> Cost:
                 compulsory + 4 * 2 * lr * 3 * sum(sizes))
 
 
-SPECS = (Spec("mlp", make, lambda f: Config(factor=f), cost, trainable=True, accept=acceptance),)
+STAGES = ("patches", "network", "output")
+
+SPECS = (Spec("mlp", make, lambda f: Config(factor=f), cost, trainable=True, accept=acceptance,
+              stages=STAGES),)

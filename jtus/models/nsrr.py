@@ -170,19 +170,26 @@ def step(params, state: State, frame: Frame, config: Config = Config()):
     previous = state.previous
     if frame.reset is not None:
         previous = jnp.where(frame.reset[:, None, None, None], 0.0, previous)
-    cur, as_prev = features(params, frame, config)
-    xy = sampling.reproject_coords(frame.motion.astype(jnp.float32), f)
-    warped, inside = sampling.sample(previous, xy, "bilinear", return_mask=True)
-    warped = jnp.where(inside, warped, 0.0)
-    wts = reweight_maps(params, cur, warped, config)
+    # The named scopes label the HLO for profiles (``Spec.stages``, python -m jtus.profile).
+    with jax.named_scope("feature_extraction"):
+        cur, as_prev = features(params, frame, config)
+    with jax.named_scope("reprojection"):
+        xy = sampling.reproject_coords(frame.motion.astype(jnp.float32), f)
+        warped, inside = sampling.sample(previous, xy, "bilinear", return_mask=True)
+        warped = jnp.where(inside, warped, 0.0)
     n = config.frames
-    scaled = [warped[..., i * FEATURES:(i + 1) * FEATURES] * wts[..., i:i + 1] for i in range(n)]
-    out = _unet(params["unet"], jnp.concatenate([cur] + scaled, -1))
-    if config.ycbcr:
-        out = sampling.ycbcr_to_rgb(out)
-    if config.exposure == "normalized":
-        out = out / base.exposure_normalizer(frame.color, config.exposure)
-    new_prev = jnp.concatenate([as_prev, warped[..., :FEATURES * (n - 1)]], -1)
+    with jax.named_scope("reweighting"):
+        wts = reweight_maps(params, cur, warped, config)
+        scaled = [warped[..., i * FEATURES:(i + 1) * FEATURES] * wts[..., i:i + 1]
+                  for i in range(n)]
+    with jax.named_scope("reconstruction"):
+        out = _unet(params["unet"], jnp.concatenate([cur] + scaled, -1))
+        if config.ycbcr:
+            out = sampling.ycbcr_to_rgb(out)
+        if config.exposure == "normalized":
+            out = out / base.exposure_normalizer(frame.color, config.exposure)
+    with jax.named_scope("reprojection"):  # the warped features travel on
+        new_prev = jnp.concatenate([as_prev, warped[..., :FEATURES * (n - 1)]], -1)
     return out, State(new_prev)
 
 
@@ -243,6 +250,9 @@ def cost(config: Config, H, W) -> Cost:
                 compulsory + act)
 
 
+STAGES = ("feature_extraction", "reprojection", "reweighting", "reconstruction")
+
 SPECS = (Spec("nsrr", make, lambda f: Config(factor=f), cost, trainable=True,
-              torch_reference="torch_nsrr"),
-         Spec("nsrr-fast", make, lambda f: Config(factor=f, fast=True), cost, trainable=True))
+              torch_reference="torch_nsrr", stages=STAGES),
+         Spec("nsrr-fast", make, lambda f: Config(factor=f, fast=True), cost, trainable=True,
+              stages=STAGES))

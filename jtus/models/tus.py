@@ -169,30 +169,37 @@ def step(params, state: State, frame: Frame, config: Config = Config()):
     color = frame.color.astype(jnp.float32)
     depth = frame.depth.astype(jnp.float32)
     motion = frame.motion.astype(jnp.float32)
-    xy = _jau_coords(frame, f)
-    s, beta_max = _scaled_input(config, color, xy)
-    fresh = _fresh(s)
+    # The named scopes label the HLO for profiles (``Spec.stages``, python -m jtus.profile).
+    with jax.named_scope("input_upsampling"):
+        xy = _jau_coords(frame, f)
+        s, beta_max = _scaled_input(config, color, xy)
+        fresh = _fresh(s)
     history = state.history
-    mv = sampling.dilate_motion(motion, depth) if config.dilation else motion
-    pos = sampling.reproject_coords(mv, f)
-    # Colour and count are read by separate warps (the same values): XLA:CPU splits one
-    # 16-tap read whose result feeds two consumers into per-tap gathers several times
-    # slower than the whole read (docs/performance.md).
-    rep, inside = sampling.sample(history[..., :3], pos, config.warp, a=config.warp_a,
-                                  return_mask=True)
-    # a reset frame's history is the fresh input, unwarped (base.reset_select)
-    rep = reset_select(frame.reset, fresh[..., :3], jnp.where(inside, rep, fresh[..., :3]))
-    rgb = _rectify(config, rep, color, xy)
-    rep_count = sampling.sample(history[..., 3:], pos, config.warp, a=config.warp_a)
-    count = reset_select(frame.reset, fresh[..., 3:],
-                         jnp.where(inside, rep_count, fresh[..., 3:]))
-    beta = _beta(config, frame, beta_max)
-    count = count + (1.0 if config.count == "frames" else beta)
-    # N = 0 (a pixel no sample reached yet, counting samples): 1/0 = inf, clipped to 1
-    alpha = jnp.clip(1.0 / count, config.alpha, 1.0) if config.inverse_count else config.alpha
-    ab = alpha * beta
-    out = ab * s + (1 - ab) * rgb
-    return out, State(jnp.concatenate([out, count], -1))
+    with jax.named_scope("reprojection"):
+        mv = sampling.dilate_motion(motion, depth) if config.dilation else motion
+        pos = sampling.reproject_coords(mv, f)
+        # Colour and count are read by separate warps (the same values): XLA:CPU splits
+        # one 16-tap read whose result feeds two consumers into per-tap gathers several
+        # times slower than the whole read (docs/performance.md).
+        rep, inside = sampling.sample(history[..., :3], pos, config.warp, a=config.warp_a,
+                                      return_mask=True)
+        # a reset frame's history is the fresh input, unwarped (base.reset_select)
+        rep = reset_select(frame.reset, fresh[..., :3], jnp.where(inside, rep, fresh[..., :3]))
+        rep_count = sampling.sample(history[..., 3:], pos, config.warp, a=config.warp_a)
+        count = reset_select(frame.reset, fresh[..., 3:],
+                             jnp.where(inside, rep_count, fresh[..., 3:]))
+    with jax.named_scope("rectification"):
+        rgb = _rectify(config, rep, color, xy)
+    with jax.named_scope("output"):
+        beta = _beta(config, frame, beta_max)
+        count = count + (1.0 if config.count == "frames" else beta)
+        # N = 0 (a pixel no sample reached yet, counting samples): 1/0 = inf, clipped to 1
+        alpha = (jnp.clip(1.0 / count, config.alpha, 1.0) if config.inverse_count
+                 else config.alpha)
+        ab = alpha * beta
+        out = ab * s + (1 - ab) * rgb
+        new = State(jnp.concatenate([out, count], -1))
+    return out, new
 
 
 def make(config: Config = Config()) -> Model:
@@ -210,4 +217,13 @@ def cost(config: Config, H, W) -> Cost:
     return Cost(scaled + warp + rect + blend, 0.0, compulsory, compulsory)
 
 
-SPECS = tuple(Spec(name, make, preset, cost) for name, preset in PRESETS.items())
+STAGES = ("input_upsampling", "reprojection", "rectification", "output")
+
+
+def _stages(config: Config):
+    """The stages a config's step labels: no rectification where it has none."""
+    return tuple(s for s in STAGES if s != "rectification" or config.rectify != "none")
+
+
+SPECS = tuple(Spec(name, make, preset, cost, stages=_stages(preset(2)))
+              for name, preset in PRESETS.items())

@@ -111,16 +111,29 @@ def _one_sum(x, factor, wx, wy):
 
 def _two_passes(x, factor, wx, wy):
     """The same values as a pass along x (every x phase of the padded rows) and then one
-    along y: the form ``_bilinear_phases`` differentiates."""
+    along y: the form ``_bilinear_phases`` differentiates. Each phase is its own slice
+    product, stacked at the end, so that the transpose reads each phase as a slice of
+    the output gradient: a tap broadcast across the phases instead transposes into a
+    sum over a size-``factor`` axis, which XLA:CPU runs as slow YNNPACK reductions (NSRR's
+    training step took 1.12-1.14x the time, docs/results/comparison-train-ab-slices/)."""
     b, h, w, c = x.shape
     p = pad_edge(x, 1)
-    row = 0  # [B,h+2,w,f,C]
-    for kx in range(3):
-        row = row + p[:, :, kx:kx + w, None, :] * wx[:, None, None, :, kx, None]
-    out = 0  # [B,h,f,w,f,C]
-    for ky in range(3):
-        out = out + row[:, ky:ky + h, None] * wy[:, None, :, None, None, ky, None]
-    return out.reshape(b, h * factor, w * factor, c)
+    rows = []  # per x phase: [B,h+2,w,C]
+    for px in range(factor):
+        row = 0
+        for kx in range(3):
+            row = row + p[:, :, kx:kx + w, :] * wx[:, None, None, px, kx, None]
+        rows.append(row)
+    out = []  # per y phase: [B,h,w,f,C]
+    for py in range(factor):
+        cols = []
+        for row in rows:
+            col = 0
+            for ky in range(3):
+                col = col + row[:, ky:ky + h] * wy[:, None, None, py, ky, None]
+            cols.append(col)
+        out.append(jnp.stack(cols, 3))
+    return jnp.stack(out, 2).reshape(b, h * factor, w * factor, c)
 
 
 @functools.partial(jax.custom_vjp, nondiff_argnums=(1,))
