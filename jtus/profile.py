@@ -24,6 +24,11 @@ says which JAX code made it. Ops are then summed by
   and *stacking* (a dynamic-update-slice in a loop body writing one frame's slice of a
   stacked buffer: the residuals the backward pass reads, or the scan's outputs).
 
+A fusion carries the metadata of its root operation, so work XLA fused into it from
+an earlier stage is filed under the root's stage (TUS's history read, fused into its
+output blend, shows under ``output``); the largest single ops the report lists show
+which fusions those are.
+
 Each op's time is its span on the thread that ran it: the op's wall time, during which
 its own worker threads (YNNPACK, Eigen) may help it. XLA:CPU mostly runs one op at a
 time here, so the spans add up to about the step's wall time (printed beside them,
