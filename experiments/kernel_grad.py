@@ -32,7 +32,8 @@ import jax.numpy as jnp
 import numpy as np
 from common import write
 
-from jtus import timing
+from jtus import bench, recipe, sharding, timing
+from jtus import config as run_config
 from jtus.models import layers
 
 # (kernel, batch, map side, in, out)
@@ -65,11 +66,8 @@ def _rules():
 
 def in_step(names, repeats, name):
     """The training steps of ``names`` under each of ``_rules()``, round-robin."""
-    from jtus import bench, recipe, sharding
-    from jtus import config as run_config
-
-    plan = recipe.plan(run_config.PRESETS["diverse"])
     cfg = run_config.PRESETS["diverse"]
+    plan = recipe.plan(cfg)
     sharding.use_host_devices(None, cfg.batch)
     own = layers.kernel_grad_form
     fns = {}

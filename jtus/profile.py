@@ -59,6 +59,9 @@ def stages_of(name):
     """The stages a profile of model ``name`` files its ops under, in order: the named
     scopes its step labels (``Spec.stages``), then the loss and the optimizer."""
     return tuple(models.spec(name).stages) + TRAINING_STAGES
+
+
+DEFAULT_STAGES = stages_of("dlctus")  # the bench's model, profiled without --model
 _INSTR = re.compile(r"\s*(?:ROOT )?%?([\w.\-]+) = .*? ([a-z][\w\-]*)\(")
 _OPNAME = re.compile(r'op_name="([^"]+)"')
 _OPERAND = re.compile(r"%?([\w.\-]+)")
@@ -79,7 +82,7 @@ def hlo_ops(text):
     return out
 
 
-def classify(name, opcode, op_name, operand="", stages=stages_of("dlctus")):
+def classify(name, opcode, op_name, operand="", stages=DEFAULT_STAGES):
     """(stage, pass, kind) of one op; ``operand``: the name of its first operand;
     ``stages``: the scope names to file it under (the first found in ``op_name``)."""
     stage = next((s for s in stages if f"/{s}/" in op_name or op_name.endswith("/" + s)),
@@ -142,7 +145,7 @@ def trace_ops(run, hlo_text, steps, logdir):
     return totals, ops, unmatched
 
 
-def summarize(totals, ops, steps, stages=stages_of("dlctus")):
+def summarize(totals, ops, steps, stages=DEFAULT_STAGES):
     by = {k: collections.Counter() for k in ("stage", "pass", "kind", "stage_pass", "stage_kind")}
     top = []
     for name, ns in totals.items():
@@ -162,7 +165,7 @@ def summarize(totals, ops, steps, stages=stages_of("dlctus")):
                         for m, n, s, p, k, o in top[:TOP_OPS]]}
 
 
-def profile(run, hlo_text, steps=3, stages=stages_of("dlctus")):
+def profile(run, hlo_text, steps=3, stages=DEFAULT_STAGES):
     """Time ``run`` ``steps`` times (``timing.timeit``), then trace it as many times; returns
     ``{"steps", "wall_ms" (median, untraced), "unmatched_events", "stages", "summary"}``,
     the ops filed under ``stages`` (``stages_of``)."""
@@ -185,7 +188,7 @@ def markdown(report):
              f"{report['steps']}); op spans summed {total:.1f} ms per step.", "",
              "| stage | forward ms | backward ms | share |",
              "| --- | --- | --- | --- |"]
-    for stage in tuple(report.get("stages", stages_of("dlctus"))) + ("other",):
+    for stage in tuple(report.get("stages", DEFAULT_STAGES)) + ("other",):
         f = s["stage_pass"].get(f"{stage}/forward", 0.0)
         b = s["stage_pass"].get(f"{stage}/backward", 0.0)
         if f or b:

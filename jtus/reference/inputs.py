@@ -6,18 +6,23 @@ import numpy as np
 import torch
 
 
+def _tensor(a, device):
+    return torch.from_numpy(np.ascontiguousarray(a, np.float32)).to(device)
+
+
+def _draw_frame(r, batch, h, w, device):
+    """``(color, depth, motion, jitter)`` of ``batch`` random ``h x w`` LR frames drawn
+    from ``r`` in that order (the distribution above)."""
+    return (_tensor(r.uniform(size=(batch, 3, h, w)), device),
+            _tensor(r.uniform(0.5, 1.0, size=(batch, 1, h, w)), device),
+            _tensor(r.normal(scale=0.5, size=(batch, 2, h, w)), device),
+            _tensor(r.uniform(size=(batch, 2)), device))
+
+
 def random_frame(factor, size, device="cpu"):
     """``(color, depth, motion, jitter)`` of one LR frame (batch 1) for HR ``size``."""
-    h, w = size[0] // factor, size[1] // factor
-    r = np.random.default_rng(0)
-
-    def t(a):
-        return torch.from_numpy(np.ascontiguousarray(a, np.float32)).to(device)
-
-    color = t(r.uniform(size=(1, 3, h, w)))
-    depth = t(r.uniform(0.5, 1.0, size=(1, 1, h, w)))
-    motion = t(r.normal(scale=0.5, size=(1, 2, h, w)))
-    return color, depth, motion, t(r.uniform(size=(1, 2)))
+    return _draw_frame(np.random.default_rng(0), 1, size[0] // factor, size[1] // factor,
+                       device)
 
 
 def random_window(factor, crop, batch, seq, device="cpu"):
@@ -27,15 +32,10 @@ def random_window(factor, crop, batch, seq, device="cpu"):
     uniform in [0, 1): the references' training workloads."""
     h = crop // factor
     r = np.random.default_rng(0)
-
-    def t(a):
-        return torch.from_numpy(np.ascontiguousarray(a, np.float32)).to(device)
-
-    frames = [(t(r.uniform(size=(batch, 3, h, h))), t(r.uniform(0.5, 1.0, size=(batch, 1, h, h))),
-               t(r.normal(scale=0.5, size=(batch, 2, h, h))), t(r.uniform(size=(batch, 2))),
-               torch.full((batch,), i == 0, dtype=torch.bool, device=device))
+    frames = [_draw_frame(r, batch, h, h, device)
+              + (torch.full((batch,), i == 0, dtype=torch.bool, device=device),)
               for i in range(seq)]
-    targets = [t(r.uniform(size=(batch, 3, crop, crop))) for _ in range(seq)]
+    targets = [_tensor(r.uniform(size=(batch, 3, crop, crop)), device) for _ in range(seq)]
     return frames, targets
 
 
