@@ -3,12 +3,17 @@ each band computed from its rows and the halo of rows its eight convolutions rea
 halo shrinking by a row per convolution, so the values are the same, checked here in
 float64 before timing). The bands share nothing, so XLA:CPU's runtime can run their
 convolutions side by side where one convolution keeps only part of the cores busy.
-Timed in turn in one process (``timing.timeit_round_robin``), with how busy the cores
-are while each runs (process CPU seconds per wall second); the trunk's size is the
-network's, a quarter of the output's in each dimension. See docs/performance.md,
+``--channel-parts N``: the same trunk with each convolution's output channels cut into
+``N`` groups instead, one convolution each over the whole image (no halo; the edge
+ring and bias added to their concatenation), another way to give the runtime
+independent convolutions. Timed in turn in one process (``timing.timeit_round_robin``),
+with how busy the cores are while each runs (process CPU seconds per wall second); the
+trunk's size is the network's, a quarter of the output's in each dimension. See docs/performance.md,
 "What the inference target asks of this machine".
 
     python experiments/trunk_strips.py --strips 2 4 8 --valid 4 --rounds 3
+    python experiments/trunk_strips.py --strips --valid --channel-parts 2 4 --rounds 3 \
+        --repeats 7 --name trunk-channel-parts
 
 Writes ``docs/results/<name>/result.{md,json}``.
 """
@@ -57,7 +62,23 @@ def trunk_bands(w1, b1, w2, b2, h, bands, valid=False):
     return jnp.concatenate(out, axis=1)
 
 
-def check(args, bands):
+def conv_parts(x, k, b, parts):
+    """``layers.conv_edge(x, k, b)`` as ``parts`` SAME convolutions, each to its share of
+    the output channels, concatenated, plus the edge ring and the bias."""
+    n = k.shape[-1] // parts
+    out = jnp.concatenate([layers.conv(x, k[..., i * n:(i + 1) * n]) for i in range(parts)], -1)
+    return out + b + layers.edge_ring(x, k)
+
+
+def trunk_parts(w1, b1, w2, b2, h, parts):
+    """``kernels.trunk_xla`` with every convolution as ``conv_parts``."""
+    for i in range(w1.shape[0]):
+        r = jax.nn.relu(conv_parts(h, w1[i], b1[i], parts))
+        h = h + conv_parts(r, w2[i], b2[i], parts)
+    return h
+
+
+def check(args, bands, parts=()):
     """The bands equal the one-image trunk in float64 (a misplaced row shows >> 1e-12)."""
     with jax.enable_x64(True):
         a64 = [a.astype(jnp.float64) for a in args]
@@ -69,9 +90,13 @@ def check(args, bands):
                 if err > 1e-12:
                     raise SystemExit(f"{n} bands (valid={valid}) differ from the trunk "
                                      f"by {err}")
+        for n in parts:
+            err = float(jnp.max(jnp.abs(trunk_parts(*a64, h, n) - want)))
+            if err > 1e-12:
+                raise SystemExit(f"{n} channel groups differ from the trunk by {err}")
 
 
-def measure(size, args, bands, valid, repeats, rounds):
+def measure(size, args, bands, valid, repeats, rounds, parts=()):
     H, W = SIZES[size]
     h = jnp.asarray(np.random.default_rng(1).normal(size=(1, H // 4, W // 4, 32)),
                     jnp.float32)
@@ -79,7 +104,9 @@ def measure(size, args, bands, valid, repeats, rounds):
               **{f"{n} bands": jax.jit(lambda x, n=n: trunk_bands(*args, x, n))
                  for n in bands},
               **{f"{n} bands, VALID": jax.jit(lambda x, n=n: trunk_bands(*args, x, n, True))
-                 for n in valid}}
+                 for n in valid},
+              **{f"{n} channel groups": jax.jit(lambda x, n=n: trunk_parts(*args, x, n))
+                 for n in parts}}
     fns = {k: (lambda f=f: f(h).block_until_ready()) for k, f in jitted.items()}
     times = {k: [] for k in fns}
     for _ in range(rounds):
@@ -103,21 +130,26 @@ def table(rows):
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--sizes", nargs="+", default=["720p", "1080p"], choices=sorted(SIZES))
-    p.add_argument("--strips", nargs="+", type=int, default=[2, 4, 8], help="band counts")
+    p.add_argument("--strips", nargs="*", type=int, default=[2, 4, 8], help="band counts")
     p.add_argument("--valid", nargs="*", type=int, default=[4],
                    help="band counts also timed with VALID convolutions")
+    p.add_argument("--channel-parts", nargs="*", type=int, default=[],
+                   help="output-channel group counts (dividing 32)")
     p.add_argument("--repeats", type=int, default=5, help="calls per round and variant")
     p.add_argument("--rounds", type=int, default=3)
     p.add_argument("--name", default="trunk-strips")
     args = p.parse_args()
-    if min(args.strips + args.valid) < 1:
+    if min(args.strips + args.valid, default=1) < 1:
         raise SystemExit(f"--strips/--valid: expected band counts >= 1, got "
                          f"{args.strips} {args.valid}")
+    if any(n < 1 or 32 % n for n in args.channel_parts):
+        raise SystemExit(f"--channel-parts: expected divisors of 32, got {args.channel_parts}")
     weights = kernels.stack_blocks(dlctus.init(jax.random.PRNGKey(0)), 4)
-    check(weights, sorted(set(args.strips + args.valid)))
+    check(weights, sorted(set(args.strips + args.valid)), args.channel_parts)
     rows = []
     for size in args.sizes:
-        rows += measure(size, weights, args.strips, args.valid, args.repeats, args.rounds)
+        rows += measure(size, weights, args.strips, args.valid, args.repeats, args.rounds,
+                        args.channel_parts)
     write(args.name, table(rows), {"rows": rows},
           note="Each round times every variant in turn (`timing.timeit_round_robin`, "
                f"{args.repeats} calls each); the table gives the median over rounds. "

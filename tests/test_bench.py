@@ -40,6 +40,24 @@ def test_bench_smoke(capsys, tmp_path):
     assert "torch_over_jtus" in tr[0] and "torch_over_jtus" not in tr[2]
 
 
+def test_training_table_says_one_device_per_core_only_when_it_was():
+    """The training table's note names the device split, and calls it one device per
+    core only when the report's machine has as many cores as the step had devices."""
+    row = {"model": "dlctus", "factor": 2, "crop": 128, "batch": 4, "seq": 8,
+           "loss_frames": 8, "unroll": False, "remat": False, "conv_backward": "custom",
+           "warp": "bicubic", "kernels": "xla", "s_per_step": 0.2, "frames_per_s": 160.0}
+
+    def note(devices, cores):
+        report = {"hardware": {"cpu": "x", "cores": cores, "jax": "0", "backend": "cpu"},
+                  "command": "python -m jtus.bench", "host_memory": "kept",
+                  "train": [dict(row, devices=devices)]}
+        return bench.markdown(report)
+
+    assert "split over 2 XLA CPU devices (one per core)" in note(2, 2)
+    assert "split over 4 XLA CPU devices." in note(4, 2)
+    assert "one XLA device" in note(1, 2) and "split over" not in note(1, 2)
+
+
 def test_interrupted_bench_keeps_the_rows_it_measured(tmp_path, monkeypatch):
     """The report on disk grows row by row: a run stopped in its second measurement
     (a time limit on a lent GPU, Ctrl-C) leaves the first row and its table."""

@@ -494,17 +494,23 @@ def test_inference_bound_splits_a_frame_into_network_floor_and_rest():
 
 
 def test_trunk_in_bands_of_rows_is_the_trunk(monkeypatch):
-    """experiments/trunk_strips.py times the band trunk only after checking it against
-    the XLA trunk in float64 (SAME and VALID bands): the check passes, and it stops the
-    run when one band row is off by 1e-9."""
+    """experiments/trunk_strips.py times the band trunk and the trunk in output-channel
+    groups only after checking them against the XLA trunk in float64 (SAME and VALID
+    bands): the check passes, and it stops the run when one band row or one channel is
+    off by 1e-9."""
     ts = seqdata.load_script("trunk_strips")
     weights = kernels.stack_blocks(dlctus.init(jax.random.PRNGKey(0)), 4)
-    ts.check(weights, [3])
+    ts.check(weights, [3], [2, 4])
     right = ts.trunk_bands
     monkeypatch.setattr(ts, "trunk_bands",
                         lambda *a: right(*a).at[:, 17].add(1e-9))
-    with pytest.raises(SystemExit, match="differ from the trunk"):
+    with pytest.raises(SystemExit, match="2 bands .* differ from the trunk"):
         ts.check(weights, [2])
+    monkeypatch.setattr(ts, "trunk_bands", right)
+    parts = ts.trunk_parts
+    monkeypatch.setattr(ts, "trunk_parts", lambda *a: parts(*a).at[..., 20].add(1e-9))
+    with pytest.raises(SystemExit, match="4 channel groups differ from the trunk"):
+        ts.check(weights, [], [4])
 
 
 def test_scan_residuals_sums_the_buffers_the_scan_stacks():

@@ -43,9 +43,12 @@ def _infer(report):
                     "apply (no network, no PyTorch reference).", ""]
 
 
-def _devices(n):
-    return (f"; the batch split over {n} XLA CPU devices (one per core)" if n > 1
-            else "; one XLA device")
+def _devices(n, cores=None):
+    """How the step ran: the batch split over ``n`` devices, said to be one per core
+    only when the report's machine has ``n`` cores."""
+    if n == 1:
+        return "; one XLA device"
+    return f"; the batch split over {n} XLA CPU devices{' (one per core)' if n == cores else ''}"
 
 
 def _train(report):
@@ -61,13 +64,14 @@ def _train(report):
             f"{_f(r, 'torch_over_jtus', '.2f')} | {_f(r, 'peak_mib', '.0f')} | "
             f"{format(r['s_per_step'] / bound, '.2f') if bound else NONE} |")
     r = report["train"][0]
+    devices = _devices(r.get("devices", 1), report.get("hardware", {}).get("cores"))
     scan = "unrolled" if r["unroll"] else "rolled"
     remat = f", remat {r['remat']}" if r["remat"] else ""
     lines += ["", f"Training step: {r['factor']}x, crop {r['crop']}, batch {r['batch']}, "
               f"sequence {r['seq']}, loss on the last {r['loss_frames']}, Adam; {scan} scan, "
               f"{r['conv_backward']} conv backward{remat}"
               f"{', preparation hoisted' if r.get('hoist') else ''}"
-              f"{_devices(r.get('devices', 1))}. Frames/s counts batch x "
+              f"{devices}. Frames/s counts batch x "
               f"sequence per step; step memory is XLA's plan (temporaries, arguments, "
               f"outputs); the bound is 3x the forward FLOPs at the measured convolution "
               f"peak, which no implementation on this machine's convolutions beats."]

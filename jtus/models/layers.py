@@ -40,18 +40,18 @@ def _conv_edge_padded(x, kernel, bias):
 def conv_edge(x, kernel, bias=None):
     """Stride-1 convolution with replicate ('edge') padding of (k-1)/2, k odd.
 
-    A 3x3 kernel runs as the SAME (zero-padded) convolution plus ``_edge_ring``: no
+    A 3x3 kernel runs as the SAME (zero-padded) convolution plus ``edge_ring``: no
     padded copy of ``x`` is made and none of the output is cropped, and XLA fuses the
     ring's masks with the bias (and whatever elementwise work follows) into one pass;
     DLCTUS's trunk took 0.73x the time of edge pad + SAME + crop at 1080p and 0.84x at
     720p on a 2-core Intel Xeon (``python experiments/conv_padding.py``,
     docs/results/conv_padding/). Other kernel sizes pad, convolve and crop."""
     if kernel.shape[:2] == (3, 3):
-        return conv(x, kernel, bias) + _edge_ring(x, kernel.astype(x.dtype))
+        return conv(x, kernel, bias) + edge_ring(x, kernel.astype(x.dtype))
     return _conv_edge_padded(x, kernel, bias)[0]
 
 
-def _edge_ring(x, kernel):
+def edge_ring(x, kernel):
     """``conv_edge(x, kernel) - conv(x, kernel)`` for a 3x3 ``kernel``: the taps that fall
     on the one-pixel ring of replicated border pixels around ``x [B,H,W,C]``, which zero
     padding leaves out. The ring's top row (its corners included) meets only kernel row 0
