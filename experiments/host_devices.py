@@ -10,6 +10,7 @@ each round is ``timing.timeit_round_robin`` of the three steps.
 
     python experiments/host_devices.py --out docs/results/train-host-devices
     python experiments/host_devices.py --what inference   # the trunk of one frame, rows split
+    python experiments/host_devices.py --what allreduce   # the gradients' exchange alone
 
 Writes ``result.json`` and ``result.md`` under ``--out``; also how busy the cores are
 (process CPU seconds per wall second) while each variant runs.
@@ -22,6 +23,7 @@ import json
 import os
 import shlex
 import sys
+import time
 
 import jax
 import jax.numpy as jnp
@@ -142,6 +144,35 @@ def inference_report(args, argv):
     _write(args.out, report, md)
 
 
+def allreduce_report(args, argv, repeats=200):
+    """``--what allreduce``: the split step's exchange alone, a ``psum`` over the devices
+    of a float32 vector the size of DLCTUS's parameters (each device holding its own),
+    ms per call with dispatch, median and minimum of ``repeats`` after a warm-up call."""
+    n_params = sum(int(np.prod(p.shape)) for p in
+                   jax.tree_util.tree_leaves(dlctus.init(jax.random.PRNGKey(0))))
+    devices = jax.devices()
+    if len(devices) < 2:
+        raise SystemExit("--what allreduce: needs several devices (--devices)")
+    mesh = Mesh(np.array(devices), ("data",))
+    x = jax.device_put(jnp.ones((len(devices), n_params), jnp.float32),
+                       jax.sharding.NamedSharding(mesh, P("data")))
+    f = jax.jit(jax.shard_map(lambda v: jax.lax.psum(v, "data"), mesh=mesh,
+                              in_specs=P("data"), out_specs=P("data")))
+    f(x).block_until_ready()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        f(x).block_until_ready()
+        times.append(1e3 * (time.perf_counter() - t0))
+    report = _report(argv, devices=len(devices), params=n_params,
+                     ms_median=float(np.median(times)), ms_min=float(min(times)))
+    _write(args.out, report, [
+        f"A `psum` over {len(devices)} XLA CPU devices of {n_params:,} float32 values each "
+        f"(DLCTUS's parameters: the split training step's gradient exchange), alone: "
+        f"{report['ms_median']:.3f} ms per call, median of {repeats} (minimum "
+        f"{report['ms_min']:.3f} ms), dispatch included."])
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--devices", type=int, default=None,
@@ -149,9 +180,10 @@ def main(argv=None):
     p.add_argument("--preset", default="diverse", help="the jtus.train preset whose step is timed")
     p.add_argument("--rounds", type=int, default=4)
     p.add_argument("--repeats", type=int, default=9, help="steps per variant in each round")
-    p.add_argument("--what", choices=("train", "inference"), default="train",
+    p.add_argument("--what", choices=("train", "inference", "allreduce"), default="train",
                    help="inference: DLCTUS's trunk on one frame, its rows split over the "
-                        "devices (trunk_rows_split), instead of the training step")
+                        "devices (trunk_rows_split), instead of the training step; "
+                        "allreduce: the split step's gradient exchange alone")
     p.add_argument("--out", default=None, help="default: docs/results/train-host-devices, "
                                                "or inference-host-devices with --what inference")
     args = p.parse_args(argv)
@@ -159,6 +191,8 @@ def main(argv=None):
     n = sharding.use_host_devices(args.devices)  # before JAX's first computation
     if args.what == "inference":
         return inference_report(args, argv)
+    if args.what == "allreduce":
+        return allreduce_report(args, argv)
 
     cfg = run_config.PRESETS[args.preset]
     plan = recipe.plan(cfg)

@@ -18,16 +18,23 @@ says which JAX code made it. Ops are then summed by
   copies, loop control);
 - **pass**: ``forward`` or ``backward`` (ops made by transposition);
 - **kind**: convolution, matmul, gather, scatter, concatenate, copy/slice, elementwise
-  fusion, reduction, other, and two kinds of a scan's bookkeeping: *fill* (materializing
-  a broadcast, and copies of one: JAX lowers a scan's stacked outputs on the CPU as
-  buffers filled with zeros, which XLA:CPU makes by copying one broadcast into each)
-  and *stacking* (a dynamic-update-slice in a loop body writing one frame's slice of a
-  stacked buffer: the residuals the backward pass reads, or the scan's outputs).
+  fusion, reduction, collective (a split step's gradient exchange: its span includes the
+  wait for the slowest device), other, and two kinds of a scan's bookkeeping: *fill*
+  (materializing a broadcast, and copies of one: JAX lowers a scan's stacked outputs on
+  the CPU as buffers filled with zeros, which XLA:CPU makes by copying one broadcast
+  into each) and *stacking* (a dynamic-update-slice in a loop body writing one frame's
+  slice of a stacked buffer: the residuals the backward pass reads, or the scan's
+  outputs).
 
 A fusion carries the metadata of its root operation, so work XLA fused into it from
 an earlier stage is filed under the root's stage (TUS's history read, fused into its
 output blend, shows under ``output``); the largest single ops the report lists show
 which fusions those are.
+
+``--host-devices N`` profiles the training step split over ``N`` XLA CPU devices, as
+``python -m jtus.train`` runs it from crop 128 on (``sharding.use_host_devices``; each
+device runs the whole program on its part of the batch). The spans of all devices are
+summed and divided by ``N``: the report's times are one device's.
 
 Each op's time is its span on the thread that ran it: the op's wall time, during which
 its own worker threads (YNNPACK, Eigen) may help it. XLA:CPU mostly runs one op at a
@@ -49,7 +56,7 @@ import tempfile
 
 import jax
 
-from jtus import bench, cli, files, models, sampling, timing
+from jtus import bench, cli, files, models, sampling, sharding, timing
 
 TRAINING_STAGES = ("loss", "optimizer")
 TOP_OPS = 25  # the single ops a report lists (the largest), 10 of them in its markdown
@@ -97,6 +104,9 @@ def classify(name, opcode, op_name, operand="", stages=DEFAULT_STAGES):
         kind = "fill"
     elif "/while/body/" in op_name and op_name.endswith("/dynamic_update_slice"):
         kind = "stacking"
+    elif opcode in ("all-reduce", "all-gather", "reduce-scatter", "all-to-all",
+                    "collective-permute"):
+        kind = "collective"  # a split step's exchange, and its wait for the other devices
     elif opcode in ("gather", "scatter", "concatenate"):
         kind = opcode
     elif op_name.endswith("/gather") or "gather" in name:
@@ -165,27 +175,33 @@ def summarize(totals, ops, steps, stages=DEFAULT_STAGES):
                         for m, n, s, p, k, o in top[:TOP_OPS]]}
 
 
-def profile(run, hlo_text, steps=3, stages=DEFAULT_STAGES):
+def profile(run, hlo_text, steps=3, stages=DEFAULT_STAGES, devices=1):
     """Time ``run`` ``steps`` times (``timing.timeit``), then trace it as many times; returns
-    ``{"steps", "wall_ms" (median, untraced), "unmatched_events", "stages", "summary"}``,
-    the ops filed under ``stages`` (``stages_of``)."""
+    ``{"steps", "wall_ms" (median, untraced), "unmatched_events", "stages", "devices",
+    "summary"}``, the ops filed under ``stages`` (``stages_of``). ``run`` runs one
+    program on each of ``devices`` devices: the summary's times are the spans of all
+    of them divided by ``devices``, one device's."""
     wall = timing.timeit(run, steps)
     with tempfile.TemporaryDirectory() as logdir:
         totals, ops, unmatched = trace_ops(run, hlo_text, steps, logdir)
     if not totals:
         raise RuntimeError("the trace held no XLA ops that match the compiled module")
     return {"steps": steps, "wall_ms": 1e3 * wall, "unmatched_events": unmatched,
-            "stages": list(stages), "summary": summarize(totals, ops, steps, stages)}
+            "stages": list(stages), "devices": devices,
+            "summary": summarize(totals, ops, steps * devices, stages)}
 
 
 def markdown(report):
     s = report["summary"]
     total = s["op_ms_per_step"]
+    n = report.get("devices", 1)
+    per = (f" on each of {n} devices (every device's spans summed, divided by {n}; all "
+           f"times below are per device)") if n > 1 else ""
     lines = [f"Profile of {report['workload']} ({report['hardware']['cpu']}, "
              f"{report['hardware']['cores']} cores, JAX {report['hardware']['jax']}).",
              f"Command: `{report['command']}`", "",
              f"Wall time {report['wall_ms']:.1f} ms per step (untraced, median of "
-             f"{report['steps']}); op spans summed {total:.1f} ms per step.", "",
+             f"{report['steps']}); op spans summed {total:.1f} ms per step{per}.", "",
              "| stage | forward ms | backward ms | share |",
              "| --- | --- | --- | --- |"]
     for stage in tuple(report.get("stages", DEFAULT_STAGES)) + ("other",):
@@ -214,8 +230,7 @@ def _short(op_name, parts=3):
     return "/".join(op_name.split("/")[-parts:]) if op_name else "-"
 
 
-def main(argv=None):
-    argv = list(sys.argv[1:] if argv is None else argv)
+def _parser():
     p = argparse.ArgumentParser(prog="python -m jtus.profile", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--what", choices=("train", "infer"), default="train")
@@ -229,10 +244,27 @@ def main(argv=None):
     p.add_argument("--loss-frames", type=int, default=5)
     p.add_argument("--warp", default="bicubic", choices=sampling.METHODS)
     p.add_argument("--steps", type=int, default=3, help="steps traced and timed")
+    p.add_argument("--host-devices", type=int, default=1,
+                   help="training: split the batch over this many XLA CPU devices, as "
+                        "python -m jtus.train does from crop 128 on (default 1)")
     p.add_argument("--out", help="write OUT.json and OUT.md")
-    args = p.parse_args(argv)
+    return p
+
+
+def _check(p, args):
+    """Refuse bad arguments (``p.error``) before any work."""
     if args.steps < 1:
         p.error(f"--steps: expected a positive count, got {args.steps}")
+    if args.host_devices < 1:
+        p.error(f"--host-devices: expected a positive count, got {args.host_devices}")
+    if args.host_devices > 1 and args.what != "train":
+        p.error("--host-devices: only the training step splits over devices (--what train)")
+    if args.host_devices > 1 and args.batch % args.host_devices:
+        p.error(f"--host-devices: {args.host_devices} devices do not divide --batch "
+                f"{args.batch}")
+    if args.what == "train" and not models.spec(args.model).trainable:
+        p.error(f"--model: {args.model} has no training step (expected one of "
+                f"{[n for n in models.NAMES if models.spec(n).trainable]})")
     if args.out:
         for suffix in (".json", ".md"):
             try:
@@ -240,17 +272,33 @@ def main(argv=None):
             except ValueError as e:
                 p.error(str(e))
 
+
+def _training(p, args):
+    """``(run, hlo, workload description)`` of the training step, split over
+    ``--host-devices`` devices."""
+    if args.host_devices > 1:
+        sharding.use_host_devices(args.host_devices, args.batch)
+    run, hlo, model = bench.train_workload(args.factor, args.crop, args.batch, args.seq,
+                                           args.loss_frames, warp=args.warp,
+                                           name=args.model, split=args.host_devices > 1)
+    if run.devices != args.host_devices:
+        p.error(f"--host-devices: asked for {args.host_devices}, but this process's JAX "
+                f"already runs on {len(jax.devices())} device(s) (set before its first "
+                f"computation)")
+    warp = f", {args.warp} warp" if hasattr(model.config, "warp") else ""
+    split = f"; the batch split over {run.devices} XLA CPU devices" if run.devices > 1 else ""
+    return run, hlo, (f"the {args.model.upper()} {args.factor}x training step (crop "
+                      f"{args.crop}, batch {args.batch}, {args.seq} frames, loss on the last "
+                      f"{args.loss_frames}{warp}, its own loss, Adam{split})")
+
+
+def main(argv=None):
+    argv = list(sys.argv[1:] if argv is None else argv)
+    p = _parser()
+    args = p.parse_args(argv)
+    _check(p, args)
     if args.what == "train":
-        if not models.spec(args.model).trainable:
-            p.error(f"--model: {args.model} has no training step (expected one of "
-                    f"{[n for n in models.NAMES if models.spec(n).trainable]})")
-        run, hlo, model = bench.train_workload(args.factor, args.crop, args.batch, args.seq,
-                                               args.loss_frames, warp=args.warp,
-                                               name=args.model)
-        warp = f", {args.warp} warp" if hasattr(model.config, "warp") else ""
-        workload = (f"the {args.model.upper()} {args.factor}x training step (crop {args.crop}, "
-                    f"batch {args.batch}, {args.seq} frames, loss on the last "
-                    f"{args.loss_frames}{warp}, its own loss, Adam)")
+        run, hlo, workload = _training(p, args)
     else:
         over = {"warp": args.warp} if hasattr(models.spec(args.model).config(args.factor), "warp") \
             else {}
@@ -261,7 +309,8 @@ def main(argv=None):
     run()  # compile
     report = {"hardware": timing.hardware(), "workload": workload,
               "command": "python -m jtus.profile " + " ".join(argv),
-              **profile(run, hlo(), args.steps, stages_of(args.model))}
+              **profile(run, hlo(), args.steps, stages_of(args.model),
+                        getattr(run, "devices", 1))}
     md = markdown(report)
     if args.out:
         for suffix, text in ((".json", json.dumps(report, indent=1)), (".md", md + "\n")):

@@ -132,6 +132,9 @@ def test_profile_classifies_ops_by_their_jax_origin():
     assert classify("wrapped_scatter.2", *ops["wrapped_scatter.2"]) == (
         "reprojection", "backward", "scatter")
     assert classify("copy.7", "copy", "") == ("other", "forward", "copy/slice")
+    # a split step's gradient exchange (its span holds the wait for the other devices)
+    assert classify("all-reduce.9", "all-reduce", "jit(train_step)/shard_map/psum") == (
+        "other", "forward", "collective")
 
 
 def test_profile_names_a_scans_buffer_fills_and_residual_writes():
@@ -224,3 +227,66 @@ def test_profile_markdown_lists_the_models_stages_and_its_largest_ops():
     assert rows[:2] == ["reconstruction", "other"]
     assert "| fusion.1 | reconstruction/forward/convolution | 3.0 | 75% | " \
            "`body/reconstruction/conv_general_dilated` |" in md
+    assert "per device" not in md
+    # a step split over devices: its times are one device's, and the report says so
+    assert "op spans summed 4.0 ms per step on each of 2 devices" in profile.markdown(
+        dict(report, devices=2))
+
+
+def test_profile_refuses_a_device_split_it_cannot_run(tmp_path, capsys):
+    """``--host-devices`` is checked before any work and nothing is written: a count
+    below 1, a split of inference (one frame, no batch), a count that does not divide
+    the batch, and (in a process whose JAX already runs on one device) any split."""
+    from jtus import profile
+
+    out = str(tmp_path / "p")
+    for argv, words in ((["--host-devices", "0"], "expected a positive count"),
+                        (["--what", "infer", "--host-devices", "2"], "--what train"),
+                        (["--batch", "3", "--host-devices", "2"], "do not divide --batch 3"),
+                        (["--crop", "16", "--batch", "2", "--seq", "2", "--loss-frames", "1",
+                          "--host-devices", "2"], "already runs on 1 device")):
+        with pytest.raises(SystemExit) as e:
+            profile.main(argv + ["--out", out])
+        assert e.value.code == 2
+        err = capsys.readouterr().err
+        assert "--host-devices" in err and words in err, err
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.long
+def test_profile_of_a_split_step_files_each_devices_ops(tmp_path):
+    """``python -m jtus.profile --host-devices 2`` (its own process: JAX's devices are set
+    before it starts) profiles the step split over two devices: the gradient exchange
+    shows as a collective, and the per-device times add up."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "p"
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    res = subprocess.run([sys.executable, "-m", "jtus.profile", "--factor", "4", "--crop", "32",
+                          "--batch", "2", "--seq", "2", "--loss-frames", "1", "--steps", "1",
+                          "--host-devices", "2", "--out", str(out)], cwd=root,
+                         capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    report = json.loads((tmp_path / "p.json").read_text())
+    s = report["summary"]
+    assert report["devices"] == 2 and s["kind"]["collective"] > 0
+    assert s["stage_pass"]["network/forward"] > 0
+    assert abs(sum(s["kind"].values()) - s["op_ms_per_step"]) < 1e-6 * s["op_ms_per_step"]
+    assert "split over 2 XLA CPU devices" in (tmp_path / "p.md").read_text()
+
+
+def test_profile_divides_the_spans_of_a_split_step_among_its_devices(monkeypatch):
+    """``profile(..., devices=N)`` sums every device's spans of an op and divides them by
+    N and by the steps: one device's time per step."""
+    from jtus import profile
+
+    text = ('  %ynn_fusion.3 = f32[4,34,34,32]{3,2,1,0} fusion(%a, %b), kind=kCustom, '
+            'metadata={op_name="jit(train_step)/jvp()/while/body/closed_call/network/'
+            'conv_general_dilated"}\n')
+    monkeypatch.setattr(profile, "trace_ops", lambda run, hlo, steps, logdir: (
+        {"ynn_fusion.3": 4 * 2 * 3e6}, profile.hlo_ops(hlo), 0))  # 2 devices, 4 steps
+    report = profile.profile(lambda: None, text, steps=4, devices=2)
+    assert report["devices"] == 2
+    assert report["summary"]["op_ms_per_step"] == pytest.approx(3.0)
+    assert report["summary"]["stage_pass"] == {"network/forward": pytest.approx(3.0)}
