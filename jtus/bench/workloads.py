@@ -141,7 +141,8 @@ def train_workload(factor, crop, batch, seq, loss_frames, remat=False, unroll=1,
                    conv_backward="custom", warp="bicubic", hoist=False, name="dlctus",
                    kernels="auto", remat_edges=True, split=True):
     """One BPTT training step of ``name`` (its own loss, Adam) on random data; with
-    ``split`` and several devices, the batch split over them as ``jtus.train`` does.
+    ``split`` and several devices, the batch split over them as ``jtus.train`` does (with
+    several processes, ``batch`` is each process's part).
     ``conv_backward``, ``warp``, ``kernels`` and ``remat_edges`` apply to models whose
     config has them. Returns
     ``(run, hlo, model)``: ``run()`` takes one step and blocks; ``hlo()`` is the
@@ -159,12 +160,13 @@ def train_workload(factor, crop, batch, seq, loss_frames, remat=False, unroll=1,
                                  loss_frames=loss_frames, remat=remat, unroll=unroll,
                                  hoist=hoist, mesh=mesh)
     frames, targets = random_window(factor, crop, batch, seq)
+    local = frames, targets  # this process's part (with several processes, ``batch`` each)
     if mesh is not None:
         ts[0] = sharding.replicate(ts[0], mesh)
         frames, targets = sharding.shard((frames, targets), mesh, axis=1)
 
     def carry():
-        c = rollout.start(rollout.first_state(model, frames), targets[0])
+        c = rollout.start(rollout.first_state(model, local[0]), local[1][0])
         return c if mesh is None else sharding.shard(c, mesh, axis=0)
 
     def run():
