@@ -23,7 +23,6 @@ import json
 import os
 import shlex
 import sys
-import time
 
 import jax
 import jax.numpy as jnp
@@ -34,7 +33,7 @@ from jax.sharding import PartitionSpec as P
 
 from common import cpu_per_wall
 from jtus import config as run_config
-from jtus import recipe, sharding, timing
+from jtus import models, recipe, sharding, timing
 from jtus.bench import workloads
 from jtus.models import dlctus, kernels, layers
 
@@ -147,9 +146,8 @@ def inference_report(args, argv):
 def allreduce_report(args, argv, repeats=200):
     """``--what allreduce``: the split step's exchange alone, a ``psum`` over the devices
     of a float32 vector the size of DLCTUS's parameters (each device holding its own),
-    ms per call with dispatch, median and minimum of ``repeats`` after a warm-up call."""
-    n_params = sum(int(np.prod(p.shape)) for p in
-                   jax.tree_util.tree_leaves(dlctus.init(jax.random.PRNGKey(0))))
+    ms per call with dispatch, the median of ``repeats`` after a warm-up call."""
+    n_params = models.param_count(dlctus.init(jax.random.PRNGKey(0)))
     devices = jax.devices()
     if len(devices) < 2:
         raise SystemExit("--what allreduce: needs several devices (--devices)")
@@ -158,19 +156,12 @@ def allreduce_report(args, argv, repeats=200):
                        jax.sharding.NamedSharding(mesh, P("data")))
     f = jax.jit(jax.shard_map(lambda v: jax.lax.psum(v, "data"), mesh=mesh,
                               in_specs=P("data"), out_specs=P("data")))
-    f(x).block_until_ready()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        f(x).block_until_ready()
-        times.append(1e3 * (time.perf_counter() - t0))
-    report = _report(argv, devices=len(devices), params=n_params,
-                     ms_median=float(np.median(times)), ms_min=float(min(times)))
+    ms = 1e3 * timing.timeit(lambda: f(x).block_until_ready(), repeats)
+    report = _report(argv, devices=len(devices), params=n_params, ms_median=ms)
     _write(args.out, report, [
         f"A `psum` over {len(devices)} XLA CPU devices of {n_params:,} float32 values each "
         f"(DLCTUS's parameters: the split training step's gradient exchange), alone: "
-        f"{report['ms_median']:.3f} ms per call, median of {repeats} (minimum "
-        f"{report['ms_min']:.3f} ms), dispatch included."])
+        f"{ms:.3f} ms per call, median of {repeats}, dispatch included."])
 
 
 def main(argv=None):

@@ -71,13 +71,11 @@ def worker(args):
 def exchange_worker(args):
     """One pinned process of ``--exchange``: ms per exchange, per array and as one vector
     (median of ``--repeats`` after a warm-up call; process 0 prints them)."""
-    import time
-
     import jax
     from jax.sharding import Mesh
     from jax.sharding import PartitionSpec as P
 
-    from jtus import sharding
+    from jtus import sharding, timing
     from jtus.models import dlctus
 
     sharding.initialize(f"localhost:{args.port}", args.processes, args.rank)
@@ -88,13 +86,7 @@ def exchange_worker(args):
 
     def timed(mean):
         f = jax.jit(jax.shard_map(mean, mesh=mesh, in_specs=P("data"), out_specs=P("data")))
-        jax.block_until_ready(f(x))
-        times = []
-        for _ in range(args.repeats):
-            t0 = time.perf_counter()
-            jax.block_until_ready(f(x))
-            times.append(1e3 * (time.perf_counter() - t0))
-        return float(np.median(times))
+        return 1e3 * timing.timeit(lambda: jax.block_until_ready(f(x)), args.repeats)
 
     res = {"arrays": len(leaves), "values": int(sum(v.size for v in leaves)),
            "ms_per_array": timed(lambda v: jax.lax.pmean(v, "data")),
