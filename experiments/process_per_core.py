@@ -32,18 +32,22 @@ import socket
 import subprocess
 import sys
 
+import jax
 import numpy as np
+from jax.sharding import Mesh
+from jax.sharding import PartitionSpec as P
 
 from common import write
+from jtus import config as run_config
+from jtus import recipe, sharding, timing
+from jtus.bench import workloads
+from jtus.models import dlctus
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def _workload(args):
     """``(factor, crop, batch, window, loss_frames)`` of ``--preset``'s training step."""
-    from jtus import config as run_config
-    from jtus import recipe
-
     cfg = run_config.PRESETS[args.preset]
     plan = recipe.plan(cfg)
     return cfg.factor, cfg.crop, cfg.batch, plan.window, plan.loss_frames
@@ -51,9 +55,6 @@ def _workload(args):
 
 def worker(args):
     """One process of a variant: time the step, print ``{"s_per_step": ...}`` (process 0)."""
-    from jtus import sharding, timing
-    from jtus.bench import workloads
-
     factor, crop, batch, window, loss_frames = _workload(args)
     if args.alone:  # this process's part of the batch, on its own
         batch //= args.processes
@@ -71,13 +72,6 @@ def worker(args):
 def exchange_worker(args):
     """One pinned process of ``--exchange``: ms per exchange, per array and as one vector
     (median of ``--repeats`` after a warm-up call; process 0 prints them)."""
-    import jax
-    from jax.sharding import Mesh
-    from jax.sharding import PartitionSpec as P
-
-    from jtus import sharding, timing
-    from jtus.models import dlctus
-
     sharding.initialize(f"localhost:{args.port}", args.processes, args.rank)
     mesh = Mesh(np.array(jax.devices()), ("data",))
     leaves = [np.asarray(x)[None] for x in
@@ -137,9 +131,6 @@ def process_per_core(args, mode="--worker", alone=False):
 
 def torch_step(args):
     """Seconds per step of PyTorch's reference step (this process, every core)."""
-    from jtus import timing
-    from jtus.bench import workloads
-
     fn = workloads.torch_reference("dlctus").train_workload(*_workload(args))
     return timing.timeit(fn, args.repeats)
 
