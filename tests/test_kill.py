@@ -10,6 +10,7 @@ import dataclasses
 import hashlib
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -75,9 +76,9 @@ def _temp_files(folder):
 
 
 @pytest.mark.parametrize("k", range(KILLS))
-def test_generate_killed_leaves_the_previous_dataset(tmp_path, k):
+def test_generate_killed_leaves_the_previous_dataset(tmp_path, k, tiny_data):
     out = tmp_path / "d.h5"
-    generate.generate("tiny", out, progress=False)
+    shutil.copyfile(tiny_data, out)  # a previous dataset, whole
     delay = np.random.default_rng([1, k]).uniform(0.0, 6.0)
     proc, before = _interrupt_generate(tmp_path, out, signal.SIGKILL, delay)
     # the previous version or the new one, whole: a kill that lands after the new file's
@@ -98,10 +99,9 @@ def test_generate_killed_leaves_the_previous_dataset(tmp_path, k):
                                                               marks=pytest.mark.long)],
                          ids=["KILL", "TERM"])
 @pytest.mark.parametrize("k", range(KILLS))
-def test_train_killed_resumes_to_the_uninterrupted_parameters(tmp_path, k, sig):
-    data = tmp_path / "tiny.h5"
-    generate.generate("tiny", data, progress=False)
-    config = dataclasses.replace(PRESETS["tiny"], dataset=str(data), epochs=8)
+def test_train_killed_resumes_to_the_uninterrupted_parameters(tmp_path, k, sig, tiny_data):
+    data = tiny_data  # read only
+    config = dataclasses.replace(PRESETS["tiny"], dataset=data, epochs=8)
     full, _ = train.train_and_evaluate(config, tmp_path / "full", progress=False)
     work = tmp_path / "cut"
         # the first epoch compiles; the 7 after it take about 0.3 s each here
@@ -130,9 +130,9 @@ def test_train_killed_resumes_to_the_uninterrupted_parameters(tmp_path, k, sig):
 
 
 @pytest.mark.parametrize("k", range(KILLS))
-def test_generate_terminated_removes_its_temporary_file(tmp_path, k):
+def test_generate_terminated_removes_its_temporary_file(tmp_path, k, tiny_data):
     out = tmp_path / "d.h5"
-    generate.generate("tiny", out, progress=False)
+    shutil.copyfile(tiny_data, out)  # a previous dataset, whole
     before = _digest(out)
     delay = np.random.default_rng([3, k]).uniform(0.0, 6.0)
     proc, _ = _interrupt_generate(tmp_path, tmp_path / "new.h5", signal.SIGTERM, delay)
