@@ -711,3 +711,14 @@ def test_donated_residual_pullbacks_give_autodiffs_gradients():
     assert set(variants) == {"autodiff", "pullbacks, donated", "pullbacks, fresh"}
     for fn in variants.values():
         fn()
+
+
+def test_scan_and_loop_of_a_video_time_the_same_outputs():
+    """experiments/scan_vs_loop.py: a model's video as one scan and as its step looped
+    from Python gives the same outputs up to float32 rounding (compared inside
+    ``per_frame``) and a time per frame for each."""
+    script = seqdata.load_script("scan_vs_loop")
+    frames, _ = seqdata.sequence(T=3, B=1, h=8, w=8, factor=4, seed=0)
+    frames = seqdata.to_jax(frames)
+    scan, loop, diff = script.per_frame("tus", frames, 1)
+    assert scan > 0 and loop > 0 and diff <= 1e-6
