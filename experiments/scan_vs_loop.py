@@ -13,6 +13,7 @@ Writes ``docs/results/<name>/result.md`` and ``result.json``.
 from __future__ import annotations
 
 import argparse
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -29,8 +30,7 @@ def per_frame(name, frames, repeats):
     rounding (1e-6)."""
     model = models.build(name, 4)
     params = model.init(jax.random.PRNGKey(0)) if name in models.TRAINABLE else {}
-    scan = jax.jit(lambda p, f: rollout.outputs(model.step, p, rollout.first_state(model, f),
-                                                f)[0])
+    scan = functools.partial(rollout.video, model, check=False)  # compiled once per model
     step = jax.jit(model.step)
 
     def loop(p, f):

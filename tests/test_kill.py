@@ -100,15 +100,14 @@ def test_generate_killed_leaves_the_previous_dataset(tmp_path, k, tiny_data):
                          ids=["KILL", "TERM"])
 @pytest.mark.parametrize("k", range(KILLS))
 def test_train_killed_resumes_to_the_uninterrupted_parameters(tmp_path, k, sig, tiny_data):
-    data = tiny_data  # read only
-    config = dataclasses.replace(PRESETS["tiny"], dataset=data, epochs=8)
+    config = dataclasses.replace(PRESETS["tiny"], dataset=tiny_data, epochs=8)
     full, _ = train.train_and_evaluate(config, tmp_path / "full", progress=False)
     work = tmp_path / "cut"
         # the first epoch compiles; the 7 after it take about 0.3 s each here
     delay = np.random.default_rng([2, k, int(sig)]).uniform(0.0, 0.6)
     # one device, as the resume below in this process: a run resumed on another device
     # count sums its gradients in another order (float rounding, not bit-equal)
-    proc = _start(["jtus.train", "--preset", "tiny", "--dataset", str(data), "--epochs", "8",
+    proc = _start(["jtus.train", "--preset", "tiny", "--dataset", tiny_data, "--epochs", "8",
                    "--workdir", str(work), "--quiet", "--no-eval", "--host-devices", "1"])
     ckpt = work / "checkpoint.msgpack"
     assert _signal(proc, sig, ckpt.exists, delay), "training finished before the signal"

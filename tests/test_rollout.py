@@ -17,10 +17,18 @@ from tests import seqdata
 
 
 # The float64 identities of the scan, the loss windows and the step's parts (below) hold
-# for any depth of the trunk; their DLCTUS has one residual block, which halves the
-# programs XLA compiles for them. The four-block network is checked against PyTorch in
-# test_dlctus_torch.py and through the float32 rollouts here.
-ONE_BLOCK = {"blocks": 1}
+# for any depth of the trunk; their DLCTUS has one residual block, a smaller program to
+# compile (the six took 99 s against 119 s with four, one process). The four-block
+# network is checked against PyTorch in test_dlctus_torch.py and through the float32
+# rollouts here.
+IDENTITY_BLOCKS = 1
+
+
+def _lift_last_bias(params, blocks):
+    """The last convolution's bias raised by 0.5, so the network's outputs o sit inside
+    (0, 1) rather than on the clamp at 0."""
+    last = params[f"block{blocks}"]["conv2"]
+    last["bias"] = last["bias"] + 0.5
 
 
 def _setup(T=6, factor=4, seed=0, config=None, dtype=np.float32, **kw):
@@ -30,8 +38,7 @@ def _setup(T=6, factor=4, seed=0, config=None, dtype=np.float32, **kw):
                                        factor=factor, seed=seed, dtype=dtype, **kw)
     model = dlctus.make(config)
     params = model.init(jax.random.PRNGKey(seed))
-    last = params[f"block{config.blocks}"]["conv2"]
-    last["bias"] = last["bias"] + 0.5
+    _lift_last_bias(params, config.blocks)
     if dtype == np.float64:
         params = jax.tree_util.tree_map(lambda x: x.astype(jnp.float64), params)
     frames, targets = seqdata.to_jax((frames, targets))
@@ -48,13 +55,12 @@ def _interior_params(params, config):
     """Weights small enough that the network's outputs o stay strictly inside (0, 1):
     no clamp is on its boundary, where the subgradient is decided by the last ulp."""
     params = jax.tree_util.tree_map(lambda x: 0.2 * x, params)
-    last = params[f"block{config.blocks}"]["conv2"]
-    last["bias"] = last["bias"] + 0.5
+    _lift_last_bias(params, config.blocks)
     return params
 
 
 def test_scan_equals_python_loop_values_and_vjp(x64):
-    config = dlctus.Config(factor=4, dtype="float64", **ONE_BLOCK)
+    config = dlctus.Config(factor=4, dtype="float64", blocks=IDENTITY_BLOCKS)
     model, params, frames, _ = _setup(T=5, config=config, dtype=np.float64)
     params = _interior_params(params, config)
     frames = frames._replace(reset=None)
@@ -150,7 +156,7 @@ def test_hoisted_preparation_equals_the_plain_step_float64(x64, warp):
     inside it, gives the plain scan's loss and gradients (float64, 1e-12), with a reset
     in the middle of one batch element, HDR colour with an exposure per frame, and a
     TBPTT cut (``keep_at``); and ``step`` is ``advance`` after ``prepare``."""
-    config = dlctus.Config(factor=4, warp=warp, hdr=True, dtype="float64", **ONE_BLOCK)
+    config = dlctus.Config(factor=4, warp=warp, hdr=True, dtype="float64", blocks=IDENTITY_BLOCKS)
     model, params, frames, targets = _setup(T=6, config=config, dtype=np.float64)
     frames = frames._replace(color=frames.color * 4.0,
                              exposure=jnp.linspace(0.2, 0.5, 12).reshape(6, 2),
@@ -190,7 +196,8 @@ def test_remat_rejects_an_unknown_policy():
 
 
 def test_tbptt_with_full_window_equals_bptt():
-    model, params, frames, targets = _setup(T=6, config=dlctus.Config(factor=4, **ONE_BLOCK))
+    config = dlctus.Config(factor=4, blocks=IDENTITY_BLOCKS)
+    model, params, frames, targets = _setup(T=6, config=config)
     (l0, _), g0 = _loss_value_and_grad(model, params, frames, targets, 2)
     carry = rollout.start(model.init_state(seqdata.first(frames)), targets[0])
     results, _ = seqdata.tbptt_grads(model.step, losses.make("st-linear", 4, theta=0.5), params,
@@ -403,7 +410,7 @@ def test_custom_conv_backward_equals_autodiff(x64):
     """The custom-VJP convolutions give plain autodiff's gradients through a rolled scan."""
     grads = []
     for cb in ("autodiff", "custom"):
-        config = dlctus.Config(factor=4, dtype="float64", conv_backward=cb, **ONE_BLOCK)
+        config = dlctus.Config(factor=4, dtype="float64", conv_backward=cb, blocks=IDENTITY_BLOCKS)
         model, params, frames, targets = _setup(T=4, config=config, dtype=np.float64)
         (_, _), g = _loss_value_and_grad(model, params, frames, targets, 2)
         grads.append(g)
@@ -417,7 +424,7 @@ def test_recomputed_edges_give_the_kept_edges_gradients(x64):
     scan as keeping their residuals, in float64."""
     out = []
     for remat in (False, True):
-        config = dlctus.Config(factor=4, dtype="float64", remat_edges=remat, **ONE_BLOCK)
+        config = dlctus.Config(factor=4, dtype="float64", remat_edges=remat, blocks=IDENTITY_BLOCKS)
         model, params, frames, targets = _setup(T=3, config=config, dtype=np.float64)
         out.append(_loss_value_and_grad(model, params, frames, targets, 2))
     (la, _), ga = out[0]
@@ -481,7 +488,7 @@ def test_late_loss_scores_the_window_from_its_index_float64(x64):
     the carry keeps the previous frame in float32, so the value agrees to 1e-10 and
     the gradients, whose cotangents pass that float32 frame, to 1e-5. A first frame
     before the loss frames scores all of them with ``late_fn``."""
-    config = dlctus.Config(factor=4, dtype="float64", **ONE_BLOCK)
+    config = dlctus.Config(factor=4, dtype="float64", blocks=IDENTITY_BLOCKS)
     model, params, frames, targets = _setup(T=6, config=config, dtype=np.float64)
     carry = rollout.start(model.init_state(seqdata.first(frames)), targets[0])
     early, late = losses.make("log-salvi", 4), losses.make("log-salvi", 4, temporal_weight=5.0)
