@@ -513,6 +513,19 @@ def test_trunk_in_bands_of_rows_is_the_trunk(monkeypatch):
         ts.check(weights, [], [4])
 
 
+def test_winograd_trunk_is_the_trunk(monkeypatch):
+    """experiments/trunk_winograd.py times the Winograd trunks only after checking them
+    against the XLA trunk in float64 on a map no tile divides: the check passes for
+    F(2x2) and F(4x4), and it stops the run when one tile's output is off by 1e-9."""
+    tw = seqdata.load_script("trunk_winograd")
+    weights = kernels.stack_blocks(dlctus.init(jax.random.PRNGKey(0)), 1)
+    tw.check(weights, [2, 4])
+    right = tw.tiles_out
+    monkeypatch.setattr(tw, "tiles_out", lambda *a: right(*a).at[:, 4:8, 4:8].add(1e-9))
+    with pytest.raises(SystemExit, match=r"F\(4x4, 3x3\) differs from the trunk"):
+        tw.check(weights, [4])
+
+
 def test_scan_residuals_sums_the_buffers_the_scan_stacks():
     """experiments/scan_residuals.py reads ``print_saved_residuals``'s lines: bytes from
     dtype and shape, and only the scan's outputs counted as stacked over the frames."""

@@ -1,0 +1,227 @@
+"""DLCTUS's trunk on XLA:CPU with its 3x3 convolutions as Winograd's minimal filtering
+(Lavin and Gray 2016) against XLA's convolution op (``kernels.trunk_xla``).
+
+F(m x m, 3 x 3) cuts the edge-padded input into overlapping (m+2) x (m+2) tiles with
+stride m, transforms each tile (``B^T d B``), multiplies the (m+2)^2 transformed
+positions by the transformed kernels (``G g G^T``, computed once) as (m+2)^2 matmuls
+``[tiles, C] @ [C, O]``, and transforms back to m x m outputs (``A^T M A``). The
+multiplies per output fall from 9 C O to (m+2)^2 / m^2 C O: 2.25x fewer with F(2x2),
+4x with F(4x4). The transforms are memory passes (each tile's (m+2)^2 positions written
+out and read back), which the direct convolution does not make. Values are the
+direct convolution's in exact arithmetic: checked here in float64 (to 1e-10) before
+timing, and the float32 difference at the timed sizes reported beside the times. The
+bound this tests: docs/performance.md, "What the inference target asks of this
+machine".
+
+    python experiments/trunk_winograd.py --rounds 3
+
+Writes ``docs/results/<name>/result.{md,json}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from common import cpu_per_wall, write
+from jtus.bench.workloads import SIZES
+from jtus.models import dlctus, kernels, layers
+from jtus.sampling import pad_edge
+from jtus.timing import timeit_round_robin
+
+# (B^T, G, A^T) of F(m x m, 3 x 3), m = 2 and 4 (Lavin and Gray 2016, sec. 4)
+MATRICES = {
+    2: ([[1, 0, -1, 0], [0, 1, 1, 0], [0, -1, 1, 0], [0, 1, 0, -1]],
+        [[1, 0, 0], [1 / 2, 1 / 2, 1 / 2], [1 / 2, -1 / 2, 1 / 2], [0, 0, 1]],
+        [[1, 1, 1, 0], [0, 1, -1, -1]]),
+    4: ([[4, 0, -5, 0, 1, 0], [0, -4, -4, 1, 1, 0], [0, 4, -4, -1, 1, 0],
+         [0, -2, -1, 2, 1, 0], [0, 2, -1, -2, 1, 0], [0, 4, 0, -5, 0, 1]],
+        [[1 / 4, 0, 0], [-1 / 6, -1 / 6, -1 / 6], [-1 / 6, 1 / 6, -1 / 6],
+         [1 / 24, 1 / 12, 1 / 6], [1 / 24, -1 / 12, 1 / 6], [0, 0, 1]],
+        [[1, 1, 1, 1, 1, 0], [0, 1, -1, 2, -2, 0], [0, 1, 1, 4, 4, 0], [0, 1, -1, 8, -8, 1]]),
+}
+
+
+def combine(mat, xs):
+    """``[sum_r mat[i][r] * xs[r] for each row i]``, zero coefficients skipped and
+    coefficients of +-1 as additions."""
+    out = []
+    for row in mat:
+        acc = None
+        for c, x in zip(row, xs):
+            if c == 0:
+                continue
+            t = x if c == 1 else -x if c == -1 else c * x
+            acc = t if acc is None else acc + t
+        out.append(acc)
+    return out
+
+
+def winograd_kernel(k, m):
+    """The transformed kernel ``G k G^T`` of a ``[3,3,C,O]`` kernel as ``[(m+2)^2, C, O]``."""
+    g = jnp.asarray(MATRICES[m][1], k.dtype)
+    u = jnp.einsum("ai,ijco,bj->abco", g, k, g)
+    return u.reshape(-1, *k.shape[2:])
+
+
+def tiles_in(x, m):
+    """The transformed input tiles ``B^T d B`` of ``x [B,H,W,C]``, edge-padded by one, as
+    ``[(m+2)^2, tiles, C]``; the last tile row and column may overhang the image."""
+    bt = MATRICES[m][0]
+    a = m + 2
+    n, h, w, c = x.shape
+    th, tw = -(-h // m), -(-w // m)
+    xp = pad_edge(x, 1)
+    xp = jnp.pad(xp, ((0, 0), (0, th * m - h), (0, tw * m - w), (0, 0)))  # overhang: cropped
+    v = []
+    for t in combine(bt, [xp[:, r:r + m * th:m] for r in range(a)]):      # B^T d
+        v += combine(bt, [t[:, :, s:s + m * tw:m] for s in range(a)])    # (B^T d) B
+    return jnp.stack(v).reshape(a * a, n * th * tw, c)
+
+
+def tiles_out(mm, shape, m):
+    """``A^T M A`` of the products ``mm [(m+2)^2, tiles, O]``, as the ``[B,H,W,O]`` image."""
+    at = MATRICES[m][2]
+    a = m + 2
+    n, h, w = shape[:3]
+    th, tw = -(-h // m), -(-w // m)
+    mm = mm.reshape(a, a, n, th, tw, -1)
+    y = [combine(at, [r[j] for j in range(a)]) for r in combine(at, list(mm))]
+    y = jnp.stack([jnp.stack(r, 3) for r in y], 2)                    # [n,th,m,tw,m,O]
+    return y.reshape(n, th * m, tw * m, -1)[:, :h, :w]
+
+
+def conv_winograd(x, u, b, m):
+    """Edge-padded 3x3 convolution of ``x [B,H,W,C]`` plus ``b``, with ``u`` from
+    ``winograd_kernel``: ``layers.conv_edge``'s values by F(m x m, 3 x 3)."""
+    mm = jnp.einsum("ktc,kco->kto", tiles_in(x, m), u)
+    return tiles_out(mm, x.shape, m) + b
+
+
+def transformed(w1, b1, w2, b2, m):
+    """The stacked trunk weights (``kernels.stack_blocks``) with transformed kernels."""
+    t = jax.vmap(lambda k: winograd_kernel(k, m))
+    return t(w1), b1, t(w2), b2
+
+
+def trunk_winograd(u1, b1, u2, b2, h, m):
+    """``kernels.trunk_xla`` with each convolution as ``conv_winograd``."""
+    for i in range(u1.shape[0]):
+        r = jax.nn.relu(conv_winograd(h, u1[i], b1[i], m))
+        h = h + conv_winograd(r, u2[i], b2[i], m)
+    return h
+
+
+def check(args, ms, size=(37, 9)):
+    """Each F(m) trunk equals the XLA trunk in float64 on a map whose size no tile
+    divides (a misplaced tile or tap shows far above 1e-10)."""
+    with jax.enable_x64(True):
+        a64 = [a.astype(jnp.float64) for a in args]
+        h = jnp.asarray(np.random.default_rng(0).normal(size=(1, *size, 32)))
+        want = jax.jit(lambda x: kernels.trunk_xla(*a64, x))(h)
+        for m in ms:
+            got = jax.jit(lambda x, m=m: trunk_winograd(*transformed(*a64, m), x, m))(h)
+            err = float(jnp.max(jnp.abs(got - want)))
+            if not err <= 1e-10:
+                raise SystemExit(f"F({m}x{m}, 3x3) differs from the trunk by {err}")
+
+
+def measure(size, args, ms, repeats, rounds):
+    H, W = SIZES[size]
+    h = jnp.asarray(np.random.default_rng(1).normal(size=(1, H // 4, W // 4, 32)),
+                    jnp.float32)
+    xla = jax.jit(lambda x: kernels.trunk_xla(*args, x))
+    jitted = {"XLA convolution": (xla, 9.0)}
+    for m in ms:
+        u = transformed(*args, m)
+        jitted[f"F({m}x{m}, 3x3)"] = (jax.jit(lambda x, u=u, m=m: trunk_winograd(*u, x, m)),
+                                      (m + 2) ** 2 / m ** 2)
+    want = xla(h)
+    scale = float(jnp.max(jnp.abs(want)))
+    fns = {k: (lambda f=f: f(h).block_until_ready()) for k, (f, _) in jitted.items()}
+    times = {k: [] for k in fns}
+    for _ in range(rounds):
+        for k, v in timeit_round_robin(fns, repeats).items():
+            times[k].append(v * 1e3)
+    base = float(np.median(times["XLA convolution"]))
+    return [{"size": size, "trunk": f"{H // 4}x{W // 4}", "variant": k,
+             "multiplies_per_output": mult * 32 * 32, "ms": float(np.median(times[k])),
+             "ms_rounds": times[k], "speedup": base / np.median(times[k]),
+             "max_rel_diff": float(jnp.max(jnp.abs(f(h) - want))) / scale,
+             "cores_busy": cpu_per_wall(fns[k], 3)[1]}
+            for k, (f, mult) in jitted.items()]
+
+
+def stages(size, k, m, repeats, rounds):
+    """One convolution's three stages, each a program of its own, against XLA's
+    convolution (ms, median of rounds)."""
+    H, W = SIZES[size]
+    x = jnp.asarray(np.random.default_rng(2).normal(size=(1, H // 4, W // 4, 32)),
+                    jnp.float32)
+    u = winograd_kernel(k, m)
+    v = jax.jit(lambda x: tiles_in(x, m))(x)
+    mm = jax.jit(lambda v: jnp.einsum("ktc,kco->kto", v, u))(v)
+    progs = {"input transform": (jax.jit(lambda x: tiles_in(x, m)), x),
+             "matmuls": (jax.jit(lambda v: jnp.einsum("ktc,kco->kto", v, u)), v),
+             "output transform": (jax.jit(lambda mm: tiles_out(mm, x.shape, m)), mm),
+             "XLA convolution": (jax.jit(lambda x: layers.conv_edge(x, k)), x)}
+    fns = {k: (lambda f=f, a=a: f(a).block_until_ready()) for k, (f, a) in progs.items()}
+    times = {k: [] for k in fns}
+    for _ in range(rounds):
+        for name, t in timeit_round_robin(fns, repeats).items():
+            times[name].append(t * 1e3)
+    return {"size": size, "m": m, **{k: float(np.median(v)) for k, v in times.items()}}
+
+
+def stage_table(rows):
+    names = ("input transform", "matmuls", "output transform", "XLA convolution")
+    return ("| size | F(m x m, 3x3) | " + " | ".join(f"{n} ms" for n in names) + " |\n"
+            + "| --- " * 6 + "|\n" + "".join(
+                f"| {r['size']} | {r['m']} | " + " | ".join(f"{r[n]:.1f}" for n in names)
+                + " |\n" for r in rows))
+
+
+def table(rows):
+    head = ("| size | trunk | variant | multiplies per output pixel and convolution | "
+            "ms (median of rounds) | rounds | XLA / this | max difference / max value "
+            "(float32) | cores busy |\n" + "| --- " * 9 + "|\n")
+    return head + "".join(
+        f"| {r['size']} | {r['trunk']} | {r['variant']} | {r['multiplies_per_output']:.0f} | "
+        f"{r['ms']:.1f} | {' '.join(f'{t:.0f}' for t in r['ms_rounds'])} | "
+        f"{r['speedup']:.2f} | {r['max_rel_diff']:.1e} | {r['cores_busy']:.2f} |\n"
+        for r in rows)
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--sizes", nargs="+", default=["720p", "1080p"], choices=sorted(SIZES))
+    p.add_argument("--tiles", nargs="+", type=int, default=[2, 4], choices=sorted(MATRICES),
+                   help="m of F(m x m, 3 x 3)")
+    p.add_argument("--repeats", type=int, default=5, help="calls per round and variant")
+    p.add_argument("--rounds", type=int, default=3)
+    p.add_argument("--name", default="trunk-winograd")
+    args = p.parse_args()
+    if args.repeats < 1 or args.rounds < 1:
+        raise SystemExit(f"--repeats/--rounds: expected at least 1, got {args.repeats} "
+                         f"{args.rounds}")
+    weights = kernels.stack_blocks(dlctus.init(jax.random.PRNGKey(0)), 4)
+    check(weights, args.tiles)
+    rows, split = [], []
+    for size in args.sizes:
+        rows += measure(size, weights, args.tiles, args.repeats, args.rounds)
+        split += [stages(size, weights[0][0], m, args.repeats, args.rounds) for m in args.tiles]
+    write(args.name, table(rows) + "\nOne convolution (the first block's first), its "
+          "stages each timed as a program of its own:\n\n" + stage_table(split),
+          {"rows": rows, "stages": split},
+          note="Each round times every variant in turn (`timing.timeit_round_robin`, "
+               f"{args.repeats} calls each); the table gives the median over rounds. "
+               "Float32, batch 1, DLCTUS's initial weights (the speed does not depend on "
+               "them); the kernels' transforms are computed before timing, as a deployed "
+               "network would hold them.")
+
+
+if __name__ == "__main__":
+    main()
