@@ -2,7 +2,9 @@
 one process, round-robin (a, b, c, ..., a, b, c, ...) so every variant sees the same
 machine; the ratios are what to read (docs/results/cpu-speed/result.md, "Training speed").
 
-Variants: the plain scan of ``step`` (the default), the same keeping the residuals of
+Variants: the plain scan of ``step`` (the default), the same with the trunk's
+convolutions differentiated by direct convolutions instead of Winograd's F(4x4)
+(``dlctus.Config.conv_backward="custom"``), the same keeping the residuals of
 the network's down-sampling and output construction per frame instead of recomputing
 them (``dlctus.Config.remat_edges=False``), the carry-independent
 preparation hoisted out of the scan (``Model.prepare``), the hoisted step under
@@ -13,6 +15,8 @@ default variant, training frames per second over batch sizes and crops, and the
 comparison systems' steps with and without the custom SAME-convolution backward.
 
     python experiments/train_speed.py                     # the bench's workload
+    python experiments/train_speed.py --variants "plain scan" \
+        "plain scan, direct convolutions" --shapes --comparison --repeats 15
     taskset -c 1 python experiments/train_speed.py --out docs/results/train-speed-1core
 
 Writes ``result.json`` and ``result.md`` under ``--out``.
@@ -26,12 +30,14 @@ import os
 import shlex
 import sys
 
+import jax
 import numpy as np
 
-from jtus import bench, timing
+from jtus import bench, sharding, timing, train
 
 VARIANTS = {  # name -> train_workload overrides
     "plain scan": {"hoist": False},
+    "plain scan, direct convolutions": {"hoist": False, "conv_backward": "custom"},
     "plain scan, edges kept": {"hoist": False, "remat_edges": False},  # dlctus.Config
     "hoisted preparation": {"hoist": True},
     "hoisted + remat dots": {"hoist": True, "remat": "dots"},
@@ -98,8 +104,14 @@ def main(argv=None):
     p.add_argument("--comparison", nargs="*", default=["nsrr-fast", "kpn"],
                    help="comparison systems timed with and without the custom SAME-conv "
                         "backward (crop 64, batch 4, 8 frames, loss on all 8)")
+    p.add_argument("--host-devices", type=int, default=None, metavar="N",
+                   help="XLA CPU devices the step splits its batch over (default: as "
+                        "python -m jtus.train chooses for --crop; 1: one device)")
     p.add_argument("--out", default="docs/results/train-speed")
     args = p.parse_args(argv)
+    if args.host_devices is not None and args.host_devices < 1:
+        p.error(f"--host-devices: expected a positive count, got {args.host_devices}")
+    sharding.use_host_devices(train.host_devices_for(args.crop, args.host_devices), args.batch)
     w = (args.factor, args.crop, args.batch, args.seq, args.loss_frames)
     fns, mem = {}, {}
     for name in args.variants:
@@ -147,7 +159,7 @@ def main(argv=None):
           f"JAX {hw.get('jax', '?')} (affinity: {len(os.sched_getaffinity(0))} core(s)).", "",
           f"DLCTUS {args.factor}x training step, crop {args.crop}, batch {args.batch}, "
           f"{args.seq} frames, loss on the last {args.loss_frames}, L1, Adam; medians of "
-          f"{args.repeats} round-robin repeats.", "",
+          f"{args.repeats} round-robin repeats; {len(jax.devices())} XLA device(s).", "",
           "| variant | s/step | frames/s | compiled memory MiB | plain/this | torch/this |",
           "| --- | --- | --- | --- | --- | --- |"]
     for r in rows:

@@ -1,5 +1,6 @@
 """DLCTUS's trunk on XLA:CPU with its 3x3 convolutions as Winograd's minimal filtering
-(Lavin and Gray 2016) against XLA's convolution op (``kernels.trunk_xla``).
+(Lavin and Gray 2016, ``jtus.models.winograd``) against XLA's convolution op
+(``kernels.trunk_xla``), at inference sizes.
 
 F(m x m, 3 x 3) cuts the edge-padded input into overlapping (m+2) x (m+2) tiles with
 stride m, transforms each tile (``B^T d B``), multiplies the (m+2)^2 transformed
@@ -28,82 +29,20 @@ import numpy as np
 
 from common import cpu_per_wall, write
 from jtus.bench.workloads import SIZES
-from jtus.models import dlctus, kernels, layers
+from jtus.models import dlctus, kernels, layers, winograd
 from jtus.sampling import pad_edge
 from jtus.timing import timeit_round_robin
-
-# (B^T, G, A^T) of F(m x m, 3 x 3), m = 2 and 4 (Lavin and Gray 2016, sec. 4)
-MATRICES = {
-    2: ([[1, 0, -1, 0], [0, 1, 1, 0], [0, -1, 1, 0], [0, 1, 0, -1]],
-        [[1, 0, 0], [1 / 2, 1 / 2, 1 / 2], [1 / 2, -1 / 2, 1 / 2], [0, 0, 1]],
-        [[1, 1, 1, 0], [0, 1, -1, -1]]),
-    4: ([[4, 0, -5, 0, 1, 0], [0, -4, -4, 1, 1, 0], [0, 4, -4, -1, 1, 0],
-         [0, -2, -1, 2, 1, 0], [0, 2, -1, -2, 1, 0], [0, 4, 0, -5, 0, 1]],
-        [[1 / 4, 0, 0], [-1 / 6, -1 / 6, -1 / 6], [-1 / 6, 1 / 6, -1 / 6],
-         [1 / 24, 1 / 12, 1 / 6], [1 / 24, -1 / 12, 1 / 6], [0, 0, 1]],
-        [[1, 1, 1, 1, 1, 0], [0, 1, -1, 2, -2, 0], [0, 1, 1, 4, 4, 0], [0, 1, -1, 8, -8, 1]]),
-}
-
-
-def combine(mat, xs):
-    """``[sum_r mat[i][r] * xs[r] for each row i]``, zero coefficients skipped and
-    coefficients of +-1 as additions."""
-    out = []
-    for row in mat:
-        acc = None
-        for c, x in zip(row, xs):
-            if c == 0:
-                continue
-            t = x if c == 1 else -x if c == -1 else c * x
-            acc = t if acc is None else acc + t
-        out.append(acc)
-    return out
-
-
-def winograd_kernel(k, m):
-    """The transformed kernel ``G k G^T`` of a ``[3,3,C,O]`` kernel as ``[(m+2)^2, C, O]``."""
-    g = jnp.asarray(MATRICES[m][1], k.dtype)
-    u = jnp.einsum("ai,ijco,bj->abco", g, k, g)
-    return u.reshape(-1, *k.shape[2:])
-
-
-def tiles_in(x, m):
-    """The transformed input tiles ``B^T d B`` of ``x [B,H,W,C]``, edge-padded by one, as
-    ``[(m+2)^2, tiles, C]``; the last tile row and column may overhang the image."""
-    bt = MATRICES[m][0]
-    a = m + 2
-    n, h, w, c = x.shape
-    th, tw = -(-h // m), -(-w // m)
-    xp = pad_edge(x, 1)
-    xp = jnp.pad(xp, ((0, 0), (0, th * m - h), (0, tw * m - w), (0, 0)))  # overhang: cropped
-    v = []
-    for t in combine(bt, [xp[:, r:r + m * th:m] for r in range(a)]):      # B^T d
-        v += combine(bt, [t[:, :, s:s + m * tw:m] for s in range(a)])    # (B^T d) B
-    return jnp.stack(v).reshape(a * a, n * th * tw, c)
-
-
-def tiles_out(mm, shape, m):
-    """``A^T M A`` of the products ``mm [(m+2)^2, tiles, O]``, as the ``[B,H,W,O]`` image."""
-    at = MATRICES[m][2]
-    a = m + 2
-    n, h, w = shape[:3]
-    th, tw = -(-h // m), -(-w // m)
-    mm = mm.reshape(a, a, n, th, tw, -1)
-    y = [combine(at, [r[j] for j in range(a)]) for r in combine(at, list(mm))]
-    y = jnp.stack([jnp.stack(r, 3) for r in y], 2)                    # [n,th,m,tw,m,O]
-    return y.reshape(n, th * m, tw * m, -1)[:, :h, :w]
 
 
 def conv_winograd(x, u, b, m):
     """Edge-padded 3x3 convolution of ``x [B,H,W,C]`` plus ``b``, with ``u`` from
-    ``winograd_kernel``: ``layers.conv_edge``'s values by F(m x m, 3 x 3)."""
-    mm = jnp.einsum("ktc,kco->kto", tiles_in(x, m), u)
-    return tiles_out(mm, x.shape, m) + b
+    ``winograd.transform_kernel``: ``layers.conv_edge``'s values by F(m x m, 3 x 3)."""
+    return winograd.conv_valid(pad_edge(x, 1), u, m) + b
 
 
 def transformed(w1, b1, w2, b2, m):
     """The stacked trunk weights (``kernels.stack_blocks``) with transformed kernels."""
-    t = jax.vmap(lambda k: winograd_kernel(k, m))
+    t = jax.vmap(lambda k: winograd.transform_kernel(k, m))
     return t(w1), b1, t(w2), b2
 
 
@@ -161,12 +100,13 @@ def stages(size, k, m, repeats, rounds):
     H, W = SIZES[size]
     x = jnp.asarray(np.random.default_rng(2).normal(size=(1, H // 4, W // 4, 32)),
                     jnp.float32)
-    u = winograd_kernel(k, m)
-    v = jax.jit(lambda x: tiles_in(x, m))(x)
+    u = winograd.transform_kernel(k, m)
+    xp = pad_edge(x, 1)
+    v = jax.jit(lambda xp: winograd.tiles_in(xp, m))(xp)
     mm = jax.jit(lambda v: jnp.einsum("ktc,kco->kto", v, u))(v)
-    progs = {"input transform": (jax.jit(lambda x: tiles_in(x, m)), x),
+    progs = {"input transform": (jax.jit(lambda x: winograd.tiles_in(pad_edge(x, 1), m)), x),
              "matmuls": (jax.jit(lambda v: jnp.einsum("ktc,kco->kto", v, u)), v),
-             "output transform": (jax.jit(lambda mm: tiles_out(mm, x.shape, m)), mm),
+             "output transform": (jax.jit(lambda mm: winograd.tiles_out(mm, x.shape, m)), mm),
              "XLA convolution": (jax.jit(lambda x: layers.conv_edge(x, k)), x)}
     fns = {k: (lambda f=f, a=a: f(a).block_until_ready()) for k, (f, a) in progs.items()}
     times = {k: [] for k in fns}
@@ -198,7 +138,8 @@ def table(rows):
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--sizes", nargs="+", default=["720p", "1080p"], choices=sorted(SIZES))
-    p.add_argument("--tiles", nargs="+", type=int, default=[2, 4], choices=sorted(MATRICES),
+    p.add_argument("--tiles", nargs="+", type=int, default=[2, 4],
+                   choices=sorted(winograd.MATRICES),
                    help="m of F(m x m, 3 x 3)")
     p.add_argument("--repeats", type=int, default=5, help="calls per round and variant")
     p.add_argument("--rounds", type=int, default=3)

@@ -1,6 +1,7 @@
-"""The networks' convolutions (``jtus.models.layers``): replicate-padded ones against an
-independent form, ``jnp.pad(mode="edge")`` followed by a VALID convolution, and both
-forms of the custom backward's kernel gradient against autodiff."""
+"""The networks' convolutions (``jtus.models.layers``, ``jtus.models.winograd``):
+replicate-padded ones against an independent form, ``jnp.pad(mode="edge")`` followed by
+a VALID convolution; the custom backwards' kernel gradient forms against autodiff; the
+Winograd convolutions against XLA's."""
 
 import jax
 import jax.numpy as jnp
@@ -8,7 +9,7 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from jtus.models import layers
+from jtus.models import layers, winograd
 
 
 def _reference(x, k, b):
@@ -83,3 +84,61 @@ def test_kernel_gradient_forms_equal_autodiff_float64(x64, rng, kernel, side, c_
         got = jax.vjp(lambda k: fast(x, k, b), k)[1](g)[0]
         ref = jax.vjp(lambda k: plain(x, k, b), k)[1](g)[0]
         np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-10)
+
+
+# output sizes below, equal to and off a multiple of the tile (the last tiles overhang)
+@pytest.mark.parametrize("m", [2, 4])
+@pytest.mark.parametrize("shape", [(1, 1), (4, 4), (5, 9)])
+def test_winograd_valid_convolution_equals_xla_float64(x64, rng, m, shape):
+    """``winograd.conv3x3_valid`` is the VALID cross-correlation of XLA's convolution op,
+    for F(2x2) and F(4x4), on sizes that no tile divides."""
+    xp = jnp.asarray(rng.normal(size=(2, shape[0] + 2, shape[1] + 2, 5)))
+    k = jnp.asarray(rng.normal(size=(3, 3, 5, 7)))
+    got = jax.jit(winograd.conv3x3_valid, static_argnums=2)(xp, k, m)
+    want = layers.conv(xp, k, padding="VALID")
+    assert got.shape == want.shape
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+
+
+def test_winograd_rejects_what_it_cannot_compute(rng):
+    x = jnp.zeros((1, 6, 6, 2))
+    with pytest.raises(ValueError, match="m: expected one of"):
+        winograd.conv3x3_valid(x, jnp.zeros((3, 3, 2, 2)), m=3)
+    with pytest.raises(ValueError, match=r"kernel: expected a \[3,3,C,O\] kernel"):
+        winograd.conv3x3_valid(x, jnp.zeros((5, 5, 2, 2)))
+    with pytest.raises(ValueError, match="xp: expected at least 3x3 pixels"):
+        winograd.conv3x3_valid(jnp.zeros((1, 2, 6, 2)), jnp.zeros((3, 3, 2, 2)))
+    with pytest.raises(ValueError, match="conv_edge_winograd takes 3x3 kernels"):
+        jax.vjp(layers.conv_edge_winograd, x, jnp.zeros((5, 5, 2, 2)), jnp.zeros(2))
+
+
+def test_conv_edge_winograd_equals_conv_edge_float64(x64, rng):
+    """``conv_edge_winograd``: its value, its forward under differentiation and its
+    three gradients are ``conv_edge``'s (1e-10), and its gradients match finite
+    differences."""
+    x, k, b = _draw(rng, (6, 9), 3, 32, 32)
+    g = jnp.asarray(rng.normal(size=(2, 6, 9, 32)))
+    # each function jitted: one program each way rather than one per operation
+    want, vjp_ref = jax.vjp(jax.jit(layers.conv_edge), x, k, b)
+    np.testing.assert_allclose(layers.conv_edge_winograd(x, k, b), want, rtol=0, atol=1e-13)
+    got, vjp = jax.vjp(jax.jit(layers.conv_edge_winograd), x, k, b)
+    np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-10)
+    for a, c in zip(vjp(g), vjp_ref(g)):
+        np.testing.assert_allclose(a, c, rtol=1e-10, atol=1e-10)
+    x, k, b = _draw(rng, (5, 3), 3)
+    check_grads(jax.jit(layers.conv_edge_winograd), (x, k, b), order=1, modes=("rev",),
+                eps=1e-6, atol=1e-7, rtol=1e-7)
+
+
+def test_conv_edge_winograd_float32_within_rounding_of_the_direct_convolution(rng):
+    """In float32 F(4x4)'s transforms round differently from XLA's convolution: its
+    forward under differentiation and its input gradient stay within 1e-5 of the
+    largest value, at DLCTUS's trunk width and a training map size."""
+    x, k, b = _draw(rng, (32, 32), 3, 32, 32, np.float32)
+    k = k * 0.1
+    g = jnp.asarray(rng.normal(size=(2, 32, 32, 32)).astype(np.float32))
+    want, vjp_ref = jax.vjp(jax.jit(layers.conv_edge_fast), x, k, b)
+    got, vjp = jax.vjp(jax.jit(layers.conv_edge_winograd), x, k, b)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-5 * float(jnp.abs(want).max()))
+    for a, c in zip(vjp(g), vjp_ref(g)):
+        np.testing.assert_allclose(a, c, rtol=0, atol=1e-5 * float(jnp.abs(c).max()))

@@ -520,8 +520,8 @@ def test_winograd_trunk_is_the_trunk(monkeypatch):
     tw = seqdata.load_script("trunk_winograd")
     weights = kernels.stack_blocks(dlctus.init(jax.random.PRNGKey(0)), 1)
     tw.check(weights, [2, 4])
-    right = tw.tiles_out
-    monkeypatch.setattr(tw, "tiles_out", lambda *a: right(*a).at[:, 4:8, 4:8].add(1e-9))
+    right = tw.conv_winograd
+    monkeypatch.setattr(tw, "conv_winograd", lambda *a: right(*a).at[:, 4:8, 4:8].add(1e-9))
     with pytest.raises(SystemExit, match=r"F\(4x4, 3x3\) differs from the trunk"):
         tw.check(weights, [4])
 

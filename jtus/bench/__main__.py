@@ -54,12 +54,13 @@ def _train_rows(args, peak, rows, saved):
         warps = args.train_warps if "warp" in models.spec(name).config(4).__dataclass_fields__ \
             else args.train_warps[:1]
         kerns = [k for k in args.train_kernels if k in models.spec(name).kernels] or ["auto"]
-        for warp, k in [(w, k) for w in warps for k in kerns]:
+        convs = args.train_conv_backward if name == "dlctus" else args.train_conv_backward[:1]
+        for warp, k, cb in [(w, k, c) for w in warps for k in kerns for c in convs]:
             rec = bench_train(args.factors[0], args.train_crop, args.train_batch,
                               args.train_seq, args.train_loss_frames, args.repeats,
                               remat=run_config.REMAT_CHOICES[args.train_remat],
                               unroll=True if args.train_unroll else 1,
-                              conv_backward=args.train_conv_backward, warp=warp,
+                              conv_backward=cb, warp=warp,
                               reference=args.torch and k == kerns[0], hoist=args.train_hoist,
                               name=name, kernels=k)
             if peak:
@@ -135,7 +136,10 @@ def _parser():
                         "(Config.hoist)")
     t.add_argument("--train-kernels", nargs="+", default=["auto"], choices=dlctus.KERNELS,
                    help="trunk implementations to time the training step with")
-    t.add_argument("--train-conv-backward", choices=("custom", "autodiff"), default="custom")
+    t.add_argument("--train-conv-backward", nargs="+", choices=dlctus.CONV_BACKWARDS,
+                   default=["auto"],
+                   help="how DLCTUS's trunk convolutions are differentiated "
+                        "(Config.conv_backward); each is timed beside PyTorch")
     t.add_argument("--train-preset", metavar="NAME", choices=tuple(run_config.PRESETS),
                    help="time the training step of a jtus.train preset (e.g. diverse, the "
                         "shipped weights' recipe): its crop, batch, window and loss frames "

@@ -52,13 +52,14 @@ def _devices(n, cores=None):
 
 
 def _train(report):
-    lines = ["| model | warp | kernels | s/step | frames/s | torch s/step | torch frames/s | "
-             "torch/jtus | step memory (MiB) | x bound at conv peak |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    lines = ["| model | warp | kernels | conv backward | s/step | frames/s | torch s/step | "
+             "torch frames/s | torch/jtus | step memory (MiB) | x bound at conv peak |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in report["train"]:
         bound = r.get("bound_s_at_conv_peak")
         lines.append(
-            f"| {r['model']} | {r['warp']} | {r.get('kernels', '-')} | {r['s_per_step']:.3f} | "
+            f"| {r['model']} | {r['warp']} | {r.get('kernels', '-')} | "
+            f"{r.get('conv_backward', '-')} | {r['s_per_step']:.3f} | "
             f"{r['frames_per_s']:.1f} | "
             f"{_f(r, 'torch_s_per_step', '.3f')} | {_f(r, 'torch_frames_per_s', '.1f')} | "
             f"{_f(r, 'torch_over_jtus', '.2f')} | {_f(r, 'peak_mib', '.0f')} | "
@@ -68,8 +69,8 @@ def _train(report):
     scan = "unrolled" if r["unroll"] else "rolled"
     remat = f", remat {r['remat']}" if r["remat"] else ""
     lines += ["", f"Training step: {r['factor']}x, crop {r['crop']}, batch {r['batch']}, "
-              f"sequence {r['seq']}, loss on the last {r['loss_frames']}, Adam; {scan} scan, "
-              f"{r['conv_backward']} conv backward{remat}"
+              f"sequence {r['seq']}, loss on the last {r['loss_frames']}, Adam; {scan} scan"
+              f"{remat}"
               f"{', preparation hoisted' if r.get('hoist') else ''}"
               f"{devices}. Frames/s counts batch x "
               f"sequence per step; step memory is XLA's plan (temporaries, arguments, "

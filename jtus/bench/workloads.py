@@ -138,7 +138,7 @@ def random_window(factor, crop, batch, seq):
 
 
 def train_workload(factor, crop, batch, seq, loss_frames, remat=False, unroll=1,
-                   conv_backward="custom", warp="bicubic", hoist=False, name="dlctus",
+                   conv_backward="auto", warp="bicubic", hoist=False, name="dlctus",
                    kernels="auto", remat_edges=True, split=True):
     """One BPTT training step of ``name`` (its own loss, Adam) on random data; with
     ``split`` and several devices, the batch split over them as ``jtus.train`` does (with
@@ -185,7 +185,7 @@ def train_workload(factor, crop, batch, seq, loss_frames, remat=False, unroll=1,
 
 
 def bench_train(factor, crop, batch, seq, loss_frames, repeats, remat=False, unroll=1,
-                conv_backward="custom", warp="bicubic", reference=True, hoist=False,
+                conv_backward="auto", warp="bicubic", reference=True, hoist=False,
                 name="dlctus", kernels="auto"):
     """The training-step timing record; with ``reference``, the PyTorch reference's
     step (when it has one with a training workload) timed alternately with it."""
@@ -197,7 +197,9 @@ def bench_train(factor, crop, batch, seq, loss_frames, repeats, remat=False, unr
     fwd = cost.cost(name, model.config, crop, crop).flops * batch * seq
     rec = {"model": name, "factor": factor, "crop": crop, "batch": batch, "seq": seq,
            "loss_frames": loss_frames, "gflop_per_step": 3 * fwd / 1e9,
-           "remat": remat, "unroll": bool(unroll is True), "conv_backward": conv_backward,
+           "remat": remat, "unroll": bool(unroll is True),
+           "conv_backward": (model.config.conv_form() if hasattr(model.config, "conv_form")
+                             else "-"),
            "warp": getattr(model.config, "warp", "-"), "hoist": hoist,
            "kernels": model.config.trunk_form() if hasattr(model.config, "trunk_form") else "-",
            "devices": run.devices}

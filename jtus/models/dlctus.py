@@ -57,7 +57,7 @@ from jtus.models.base import (Cost, ExportIO, Model, Spec, bind, carry_dtype, co
                               reset_select)
 
 FORMULATIONS = ("standard", "opt1", "opt2")
-CONV_BACKWARDS = ("autodiff", "custom")
+CONV_BACKWARDS = ("auto", "autodiff", "custom", "winograd")
 # the trunk's forms (jtus.models.kernels); "auto" picks by measurement (Config.trunk_form)
 KERNELS = ("auto", "xla", "im2col", "pallas")
 DOWN = 4  # the network works at 1/4 of the HR resolution
@@ -77,7 +77,9 @@ class Config:
     # The fastest on XLA:CPU by measurement (docs/performance.md); every formulation
     # and backward gives the same values, so they change speed only.
     formulation: str = "opt2"
-    conv_backward: str = "custom"    # or "autodiff": see layers.conv_edge_fast
+    # how the trunk's convolutions are differentiated: "custom" (layers.conv_edge_fast),
+    # "winograd" (layers.conv_edge_winograd), "autodiff"; "auto": Config.conv_form
+    conv_backward: str = "auto"
     kernels: str = "auto"        # "xla", "im2col" (matmuls), "pallas" (Triton kernels)
     # recompute the 4x4 down-sampling and the output construction in the backward pass
     # rather than keep their residuals per frame (a training scan stacks them)
@@ -114,6 +116,18 @@ class Config:
     def in_channels(self):
         """The network's input channels: eq. 46's 8, 9 with ``resample_input``."""
         return 8 + int(self.resample_input)
+
+    def conv_form(self, backend=None):
+        """How the trunk's convolutions are differentiated on ``backend`` (JAX's default if
+        None): ``conv_backward``, or for ``"auto"`` Winograd's F(4x4, 3x3) forward and input
+        gradient on a CPU in float32 or float64, measured faster in the training step there
+        (docs/performance.md), and ``"custom"`` elsewhere (bfloat16, whose rounding
+        F(4x4)'s transforms would amplify; GPUs, where it was not measured). Without
+        differentiation every form is ``layers.conv_edge``."""
+        if self.conv_backward != "auto":
+            return self.conv_backward
+        cpu = (backend or jax.default_backend()) == "cpu"
+        return "winograd" if cpu and self.dtype in ("float32", "float64") else "custom"
 
     def trunk_form(self, backend=None):
         """The trunk's form on ``backend`` (JAX's default if None): ``kernels``, or for
@@ -190,7 +204,8 @@ def _trunk(params, h, config):
     form = config.trunk_form()
     if form != "xla":
         return kernels.trunk(params, h, config.blocks, form)
-    conv = layers.conv_edge_fast if config.conv_backward == "custom" else layers.conv_edge
+    conv = {"custom": layers.conv_edge_fast, "winograd": layers.conv_edge_winograd,
+            "autodiff": layers.conv_edge}[config.conv_form()]
     for i in range(config.blocks):
         blk = params[f"block{i + 1}"]
         r = jax.nn.relu(conv(h, blk["conv1"]["kernel"], blk["conv1"]["bias"]))

@@ -15,6 +15,7 @@ import math
 import jax
 import jax.numpy as jnp
 
+from jtus.models import winograd
 from jtus.sampling import pad_edge
 
 _DN = ("NHWC", "HWIO", "NHWC")
@@ -148,19 +149,63 @@ def _fast_fwd(x, kernel, bias):
     return y, (xp, kernel)
 
 
-def _fast_bwd(res, g):
+def _edge_bwd(res, g, full):
+    """The three gradients of an edge-padded convolution whose padded input ``xp`` was
+    kept: the kernel's by ``_kernel_grad``, the input's as ``full(g, flipped kernel)``
+    (the gradient with respect to ``xp``) folded back through the padding."""
     xp, kernel = res
-    k = kernel.shape[0]
-    p = (k - 1) // 2
+    p = (kernel.shape[0] - 1) // 2
     dk = _kernel_grad(xp, g)
-    flipped = jnp.flip(kernel, (0, 1)).transpose(0, 1, 3, 2)
-    gp = jnp.pad(g, ((0, 0), (p, p), (p, p), (0, 0)))
-    dxp = conv(gp, flipped.astype(g.dtype))  # gradient w.r.t. the padded input
+    flipped = jnp.flip(kernel, (0, 1)).transpose(0, 1, 3, 2).astype(g.dtype)
+    dxp = full(g, flipped)
     dx = _edge_pad_adjoint(dxp, p) if p else dxp
     return dx.astype(xp.dtype), dk.astype(kernel.dtype), g.sum((0, 1, 2)).astype(kernel.dtype)
 
 
+def _full_xla(g, flipped):
+    """The "full" convolution of ``g`` (output larger by the kernel's reach): a SAME
+    convolution of ``g`` zero-padded by that reach."""
+    p = (flipped.shape[0] - 1) // 2
+    return conv(jnp.pad(g, ((0, 0), (p, p), (p, p), (0, 0))), flipped)
+
+
+def _fast_bwd(res, g):
+    return _edge_bwd(res, g, _full_xla)
+
+
 conv_edge_fast.defvjp(_fast_fwd, _fast_bwd)
+
+
+@jax.custom_vjp
+def conv_edge_winograd(x, kernel, bias):
+    """``conv_edge_fast`` (3x3 kernels) whose forward pass and input gradient under
+    differentiation are Winograd's F(4x4, 3x3) (``winograd.conv3x3_valid``; the kernel
+    gradient is ``conv_edge_fast``'s). Without differentiation it is ``conv_edge``. On
+    XLA:CPU, DLCTUS's training step with it took 0.89-0.93x the time with
+    ``conv_edge_fast`` (docs/performance.md, "Winograd's convolutions in training"). Values
+    and gradients equal ``conv_edge``'s to float32 rounding (F(4x4)'s: about 1e-6 of the
+    largest value) and to 1e-10 in float64 (tested)."""
+    return conv_edge(x, kernel, bias)
+
+
+def _winograd_fwd(x, kernel, bias):
+    if kernel.shape[:2] != (3, 3):
+        raise ValueError(f"kernel: conv_edge_winograd takes 3x3 kernels, got shape "
+                         f"{kernel.shape}")
+    xp = pad_edge(x, 1)
+    y = winograd.conv3x3_valid(xp, kernel.astype(x.dtype)) + bias.astype(x.dtype)
+    return y, (xp, kernel)
+
+
+def _full_winograd(g, flipped):
+    return winograd.conv3x3_valid(jnp.pad(g, ((0, 0), (2, 2), (2, 2), (0, 0))), flipped)
+
+
+def _winograd_bwd(res, g):
+    return _edge_bwd(res, g, _full_winograd)
+
+
+conv_edge_winograd.defvjp(_winograd_fwd, _winograd_bwd)
 
 
 KERNEL_GRAD_FORMS = {"conv": "convolution", "taps": "matmul per tap",
