@@ -75,7 +75,8 @@ class Config:
     dilation: bool = False
     dtype: str = "float32"       # network compute dtype; the history stays float32
     # The fastest on XLA:CPU by measurement (docs/performance.md); every formulation
-    # and backward gives the same values, so they change speed only.
+    # and backward gives the same values (Winograd's to float32 rounding, and only under
+    # differentiation), so they change speed only.
     formulation: str = "opt2"
     # how the trunk's convolutions are differentiated: "custom" (layers.conv_edge_fast),
     # "winograd" (layers.conv_edge_winograd), "autodiff"; "auto": Config.conv_form
