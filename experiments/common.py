@@ -35,6 +35,16 @@ def cpu_per_wall(fn, repeats):
     return (t1 - t0) / repeats, (c1.user - c0.user + c1.system - c0.system) / (t1 - t0)
 
 
+def rounds_ms(fns, repeats, rounds):
+    """``{name: [ms per call in each round]}``: ``rounds`` rounds of
+    ``timing.timeit_round_robin(fns, repeats)``, every function timed in turn within each."""
+    times = {k: [] for k in fns}
+    for _ in range(rounds):
+        for k, v in timing.timeit_round_robin(fns, repeats).items():
+            times[k].append(v * 1e3)
+    return times
+
+
 def out_dir(name):
     d = os.path.join(RESULTS, name)
     os.makedirs(d, exist_ok=True)

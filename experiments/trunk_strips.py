@@ -26,10 +26,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from common import cpu_per_wall, write
+from common import cpu_per_wall, rounds_ms, write
 from jtus.bench.workloads import SIZES
 from jtus.models import dlctus, kernels, layers
-from jtus.timing import timeit_round_robin
 
 
 def conv_band(x, k, b, top, bottom, valid=False):
@@ -110,10 +109,7 @@ def measure(size, args, bands, valid, repeats, rounds, parts=()):
               **{f"{n} channel groups": jax.jit(lambda x, n=n: trunk_parts(*args, x, n))
                  for n in parts}}
     fns = {k: (lambda f=f: f(h).block_until_ready()) for k, f in jitted.items()}
-    times = {k: [] for k in fns}
-    for _ in range(rounds):
-        for k, v in timeit_round_robin(fns, repeats).items():
-            times[k].append(v * 1e3)
+    times = rounds_ms(fns, repeats, rounds)
     base = float(np.median(times["one image"]))
     return [{"size": size, "trunk": f"{H // 4}x{W // 4}", "variant": k,
              "ms": float(np.median(v)), "ms_rounds": v, "speedup": base / np.median(v),

@@ -27,11 +27,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from common import cpu_per_wall, write
+from common import cpu_per_wall, rounds_ms, write
 from jtus.bench.workloads import SIZES
 from jtus.models import dlctus, kernels, layers, winograd
 from jtus.sampling import pad_edge
-from jtus.timing import timeit_round_robin
 
 
 def conv_winograd(x, u, b, m):
@@ -81,10 +80,7 @@ def measure(size, args, ms, repeats, rounds):
     want = xla(h)
     scale = float(jnp.max(jnp.abs(want)))
     fns = {k: (lambda f=f: f(h).block_until_ready()) for k, (f, _) in jitted.items()}
-    times = {k: [] for k in fns}
-    for _ in range(rounds):
-        for k, v in timeit_round_robin(fns, repeats).items():
-            times[k].append(v * 1e3)
+    times = rounds_ms(fns, repeats, rounds)
     base = float(np.median(times["XLA convolution"]))
     return [{"size": size, "trunk": f"{H // 4}x{W // 4}", "variant": k,
              "multiplies_per_output": mult * 32 * 32, "ms": float(np.median(times[k])),
@@ -109,10 +105,7 @@ def stages(size, k, m, repeats, rounds):
              "output transform": (jax.jit(lambda mm: winograd.tiles_out(mm, x.shape, m)), mm),
              "XLA convolution": (jax.jit(lambda x: layers.conv_edge(x, k)), x)}
     fns = {k: (lambda f=f, a=a: f(a).block_until_ready()) for k, (f, a) in progs.items()}
-    times = {k: [] for k in fns}
-    for _ in range(rounds):
-        for name, t in timeit_round_robin(fns, repeats).items():
-            times[name].append(t * 1e3)
+    times = rounds_ms(fns, repeats, rounds)
     return {"size": size, "m": m, **{k: float(np.median(v)) for k, v in times.items()}}
 
 
