@@ -3,8 +3,9 @@ one process, round-robin (a, b, c, ..., a, b, c, ...) so every variant sees the 
 machine; the ratios are what to read (docs/results/cpu-speed/result.md, "Training speed").
 
 Variants: the plain scan of ``step`` (the default), the same with the trunk's
-convolutions differentiated by direct convolutions instead of Winograd's F(4x4)
-(``dlctus.Config.conv_backward="custom"``), the same keeping the residuals of
+convolutions differentiated by direct convolutions or by Winograd's F(4x4), whatever
+the map size (``dlctus.Config.conv_backward="custom"`` and ``"winograd"``; the default
+``"auto"`` picks by size), the same keeping the residuals of
 the network's down-sampling and output construction per frame instead of recomputing
 them (``dlctus.Config.remat_edges=False``), the carry-independent
 preparation hoisted out of the scan (``Model.prepare``), the hoisted step under
@@ -38,6 +39,7 @@ from jtus import bench, sharding, timing, train
 VARIANTS = {  # name -> train_workload overrides
     "plain scan": {"hoist": False},
     "plain scan, direct convolutions": {"hoist": False, "conv_backward": "custom"},
+    "plain scan, Winograd convolutions": {"hoist": False, "conv_backward": "winograd"},
     "plain scan, edges kept": {"hoist": False, "remat_edges": False},  # dlctus.Config
     "hoisted preparation": {"hoist": True},
     "hoisted + remat dots": {"hoist": True, "remat": "dots"},

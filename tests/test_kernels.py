@@ -103,29 +103,38 @@ def test_auto_picks_the_pallas_kernels_only_where_they_measured_faster():
     assert dlctus.Config(kernels="pallas").trunk_form("cpu") == "pallas"
 
 
-def test_auto_differentiates_the_trunk_by_winograd_only_on_a_cpu_in_float32(monkeypatch):
+def test_auto_differentiates_the_trunk_by_winograd_only_where_it_measured_faster(
+        monkeypatch):
     """``conv_backward="auto"`` (the default): Winograd's F(4x4) forward and input
-    gradient on a CPU in float32 or float64, the custom backward in bfloat16 and on a
-    GPU; a named form is kept as named. The XLA trunk of the default model is then
-    differentiated through ``layers.conv_edge_winograd``, each of its convolutions."""
-    assert dlctus.Config().conv_backward == "auto"
-    assert dlctus.Config().conv_form("cpu") == "winograd"
-    assert dlctus.Config(dtype="float64").conv_form("cpu") == "winograd"
-    assert dlctus.Config(dtype="bfloat16").conv_form("cpu") == "custom"
-    assert dlctus.Config().conv_form("gpu") == "custom"
-    assert dlctus.Config(conv_backward="custom").conv_form("cpu") == "custom"
+    gradient on a CPU in float32 or float64 for trunk maps within ``WINOGRAD_PIXELS`` per
+    device, the custom backward on smaller and larger maps, in bfloat16 and on a GPU; a
+    named form is kept as named. DLCTUS's network is then differentiated through
+    ``layers.conv_edge_winograd``, each of its convolutions, only on a map in the
+    range."""
+    lo, hi = dlctus.WINOGRAD_PIXELS
+    auto = dlctus.Config()
+    assert auto.conv_backward == "auto"
+    assert auto.conv_form("cpu") == "winograd"
+    assert auto.conv_form("cpu", lo) == "winograd" and auto.conv_form("cpu", hi) == "winograd"
+    assert auto.conv_form("cpu", lo - 1) == "custom" and auto.conv_form("cpu", hi + 1) == "custom"
+    assert dlctus.Config(dtype="float64").conv_form("cpu", lo) == "winograd"
+    assert dlctus.Config(dtype="bfloat16").conv_form("cpu", lo) == "custom"
+    assert auto.conv_form("gpu", lo) == "custom"
+    assert dlctus.Config(conv_backward="custom").conv_form("cpu", lo) == "custom"
+    assert dlctus.Config(conv_backward="winograd").conv_form("cpu", hi + 1) == "winograd"
     assert dlctus.Config(conv_backward="winograd", dtype="bfloat16").conv_form("gpu") == \
         "winograd"
     calls = []
     real = layers.conv_edge_winograd
     monkeypatch.setattr(layers, "conv_edge_winograd", lambda *a: calls.append(1) or real(*a))
-    frames, targets = seqdata.to_jax(seqdata.sequence(T=1, B=1, h=4, w=4, factor=4, seed=5))
     config = dlctus.Config(blocks=1)  # one block: the same choice, a shorter compile
-    model = dlctus.make(config)
-    state = model.init_state(seqdata.first(frames))
-    jax.jit(jax.grad(lambda p: jnp.mean(rollout.outputs(model.step, p, state, frames)[0])))(
-        dlctus.init(jax.random.PRNGKey(0), config))
-    assert len(calls) == 2
+    params = dlctus.init(jax.random.PRNGKey(0), config)
+    for side, winograd in ((16, False), (48, True), (91, False)):  # the trunk's map side
+        x = dlctus.NetInput(lr=jnp.zeros((1, side, side, 4)), jitter=jnp.zeros((1, 2)),
+                            hist=jnp.zeros((1, 4 * side, 4 * side, 4)))
+        calls.clear()
+        jax.jit(jax.grad(lambda p: jnp.mean(dlctus.network(p, x, config))))(params)
+        assert len(calls) == (2 if winograd else 0), side
 
 
 def test_kernels_config_is_checked():

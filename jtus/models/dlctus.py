@@ -42,6 +42,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import functools
+import math
 import pickle
 from typing import NamedTuple, Optional
 
@@ -61,6 +62,11 @@ CONV_BACKWARDS = ("auto", "autodiff", "custom", "winograd")
 # the trunk's forms (jtus.models.kernels); "auto" picks by measurement (Config.trunk_form)
 KERNELS = ("auto", "xla", "im2col", "pallas")
 DOWN = 4  # the network works at 1/4 of the HR resolution
+# the trunk maps (batch x height x width on a device, smallest and largest) that
+# conv_backward="auto" differentiates by Winograd: the training step was faster with it
+# at 2 x 32 x 32 and 2 x 64 x 64 (crops 128 and 256, split over two devices), slower at
+# 4 x 16 x 16 (crop 64, one device) and 2 x 128 x 128 (crop 512; docs/performance.md)
+WINOGRAD_PIXELS = (2 * 32 * 32, 2 * 64 * 64)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -118,17 +124,22 @@ class Config:
         """The network's input channels: eq. 46's 8, 9 with ``resample_input``."""
         return 8 + int(self.resample_input)
 
-    def conv_form(self, backend=None):
+    def conv_form(self, backend=None, pixels=None):
         """How the trunk's convolutions are differentiated on ``backend`` (JAX's default if
-        None): ``conv_backward``, or for ``"auto"`` Winograd's F(4x4, 3x3) forward and input
-        gradient on a CPU in float32 or float64, measured faster in the training step there
-        (docs/performance.md), and ``"custom"`` elsewhere (bfloat16, whose rounding
-        F(4x4)'s transforms would amplify; GPUs, where it was not measured). Without
-        differentiation every form is ``layers.conv_edge``."""
+        None) for maps of ``pixels`` (batch x height x width on one device; None: any):
+        ``conv_backward``, or for ``"auto"`` Winograd's F(4x4, 3x3) forward and input
+        gradient on a CPU in float32 or float64 within ``WINOGRAD_PIXELS``, where it was
+        measured faster in the training step (docs/performance.md), and ``"custom"``
+        elsewhere (smaller maps, where its many small operations cost more than they save;
+        larger ones, whose transformed tiles outgrow the cache; bfloat16, whose rounding
+        F(4x4)'s transforms would amplify; GPUs, where it was not measured).
+        Without differentiation every form is ``layers.conv_edge``."""
         if self.conv_backward != "auto":
             return self.conv_backward
         cpu = (backend or jax.default_backend()) == "cpu"
-        return "winograd" if cpu and self.dtype in ("float32", "float64") else "custom"
+        lo, hi = WINOGRAD_PIXELS
+        fits = pixels is None or lo <= pixels <= hi
+        return "winograd" if cpu and fits and self.dtype in ("float32", "float64") else "custom"
 
     def trunk_form(self, backend=None):
         """The trunk's form on ``backend`` (JAX's default if None): ``kernels``, or for
@@ -206,7 +217,7 @@ def _trunk(params, h, config):
     if form != "xla":
         return kernels.trunk(params, h, config.blocks, form)
     conv = {"custom": layers.conv_edge_fast, "winograd": layers.conv_edge_winograd,
-            "autodiff": layers.conv_edge}[config.conv_form()]
+            "autodiff": layers.conv_edge}[config.conv_form(pixels=math.prod(h.shape[:3]))]
     for i in range(config.blocks):
         blk = params[f"block{i + 1}"]
         r = jax.nn.relu(conv(h, blk["conv1"]["kernel"], blk["conv1"]["bias"]))

@@ -10,11 +10,13 @@ transforms, which are passes over memory. The values are the direct convolution'
 exact arithmetic; in float32 F(4x4) differs by about 1e-6 of the largest output (its
 transforms' coefficients reach 8), so the training step uses it and bfloat16 does not.
 
-On XLA:CPU it pays where the transformed tiles stay in cache: DLCTUS's training maps
-(32x32, a batch of 2 per device) run the training step 1.08-1.12x as fast with the forward and
-input-gradient convolutions in this form (``layers.conv_edge_winograd``), while the
-inference frames' maps (180x320 and larger) run slower than XLA's convolution
-(``python experiments/trunk_winograd.py``, docs/performance.md).
+On XLA:CPU it pays where the maps are small but not tiny: DLCTUS's training step ran
+1.08-1.12x as fast at crop 128 (32x32 trunk maps, a batch of 2 per device) and 1.06x at
+crop 256 with the forward and input-gradient convolutions in this form
+(``layers.conv_edge_winograd``), 0.97x on 16x16 maps (its many small operations) and on
+128x128 maps (transformed tiles beyond the cache), which ``dlctus.WINOGRAD_PIXELS``
+leaves to the direct form; the inference frames' trunk (180x320 and larger) gains too
+little to use (``python experiments/trunk_winograd.py``, docs/performance.md).
 """
 
 from __future__ import annotations
