@@ -20,6 +20,10 @@ comparison systems' steps with and without the custom SAME-convolution backward.
         "plain scan, direct convolutions" --shapes --comparison --repeats 15
     taskset -c 1 python experiments/train_speed.py --out docs/results/train-speed-1core
 
+The step splits its batch over XLA CPU devices as ``python -m jtus.train`` does for the
+crop (``--host-devices``); results recorded before that option existed ran on one device,
+and ``--host-devices 1`` repeats them.
+
 Writes ``result.json`` and ``result.md`` under ``--out``.
 """
 
