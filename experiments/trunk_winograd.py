@@ -97,11 +97,11 @@ def stages(size, k, m, repeats, rounds):
     x = jnp.asarray(np.random.default_rng(2).normal(size=(1, H // 4, W // 4, 32)),
                     jnp.float32)
     u = winograd.transform_kernel(k, m)
-    xp = pad_edge(x, 1)
-    v = jax.jit(lambda xp: winograd.tiles_in(xp, m))(xp)
-    mm = jax.jit(lambda v: jnp.einsum("ktc,kco->kto", v, u))(v)
-    progs = {"input transform": (jax.jit(lambda x: winograd.tiles_in(pad_edge(x, 1), m)), x),
-             "matmuls": (jax.jit(lambda v: jnp.einsum("ktc,kco->kto", v, u)), v),
+    tiles = jax.jit(lambda x: winograd.tiles_in(pad_edge(x, 1), m))
+    products = jax.jit(lambda v: jnp.einsum("ktc,kco->kto", v, u))
+    v = tiles(x)
+    mm = products(v)
+    progs = {"input transform": (tiles, x), "matmuls": (products, v),
              "output transform": (jax.jit(lambda mm: winograd.tiles_out(mm, x.shape, m)), mm),
              "XLA convolution": (jax.jit(lambda x: layers.conv_edge(x, k)), x)}
     fns = {k: (lambda f=f, a=a: f(a).block_until_ready()) for k, (f, a) in progs.items()}

@@ -51,10 +51,11 @@ def _infer_rows(args, rows, saved):
 
 def _train_rows(args, peak, rows, saved):
     for name in args.train_models:
-        warps = args.train_warps if "warp" in models.spec(name).config(4).__dataclass_fields__ \
-            else args.train_warps[:1]
+        fields = models.spec(name).config(4).__dataclass_fields__
+        warps = args.train_warps if "warp" in fields else args.train_warps[:1]
         kerns = [k for k in args.train_kernels if k in models.spec(name).kernels] or ["auto"]
-        convs = args.train_conv_backward if name == "dlctus" else args.train_conv_backward[:1]
+        convs = args.train_conv_backward if "conv_backward" in fields \
+            else args.train_conv_backward[:1]
         for warp, k, cb in [(w, k, c) for w in warps for k in kerns for c in convs]:
             rec = bench_train(args.factors[0], args.train_crop, args.train_batch,
                               args.train_seq, args.train_loss_frames, args.repeats,
