@@ -80,6 +80,57 @@ def test_nsrr_config_names_the_bad_field(changes, message):
     assert nsrr.Config(frames=1, extract=(8,)).frames == 1
 
 
+def test_nsrr_differentiates_by_winograd_only_where_it_measured_faster(monkeypatch):
+    """``conv_backward="auto"`` (the default): Winograd's F(4x4) forward and input gradient
+    on a CPU for the full-width model's 3x3 layers from at least 32 channels to at least
+    16 on maps of at most ``WINOGRAD_PIXELS`` per device, the custom backward for the
+    others, on larger maps, on a GPU and for NSRR-fast; ``"winograd"`` named takes the
+    same layers anywhere, ``"custom"`` none. In NSRR's step that is both
+    extractors' and the reweighting's middle layers and the U-Net's first nine (12), and
+    only those on the smallest maps when the bound leaves the others out (the layer's
+    values: ``tests/test_convolutions.py``)."""
+    from jtus.models import layers
+
+    auto, most = nsrr.Config(), nsrr.WINOGRAD_PIXELS
+    assert auto.conv_backward == "auto"
+    assert auto.conv_form("cpu", most, (32, 16)) == "winograd"
+    assert auto.conv_form("cpu", most + 1, (32, 16)) == "custom"
+    assert auto.conv_form("cpu", 64, (20, 32)) == "custom"
+    assert auto.conv_form("cpu", 64, (32, 3)) == "custom"
+    assert auto.conv_form("gpu", 64, (64, 64)) == "custom"
+    assert auto.train_conv_form(2, 128, "cpu") == "winograd"
+    assert auto.train_conv_form(2, 256, "cpu") == "custom"
+    assert nsrr.Config(conv_backward="custom").conv_form("cpu", 64, (64, 64)) == "custom"
+    assert nsrr.Config(conv_backward="winograd").conv_form("gpu") == "winograd"
+    assert nsrr.Config(conv_backward="winograd").conv_form("gpu", 10 ** 9, (32, 16)) == \
+        "winograd"
+    assert nsrr.Config(conv_backward="winograd").conv_form("cpu", 64, (20, 32)) == "custom"
+    assert nsrr.Config(fast=True).conv_form("cpu", 64, (64, 64)) == "custom"
+    assert nsrr.Config(fast=True, conv_backward="winograd").conv_form("cpu", 64, (64, 64)) \
+        == "winograd"
+    with pytest.raises(ValueError, match=r"^conv_backward: expected one of \('auto', "):
+        nsrr.Config(conv_backward="fast")
+
+    frames, targets = _frames(T=1, B=1, h=4)
+    frame, target = seqdata.first(frames), seqdata.first(targets)
+    params = nsrr.init(jax.random.PRNGKey(0), nsrr.Config())
+
+    def loss(p, config):
+        out, _ = nsrr.step(p, nsrr.init_state(frame, config), frame, config)
+        return jnp.mean((out - target) ** 2)
+
+    calls = []
+    real = layers.conv_same_winograd
+    monkeypatch.setattr(layers, "conv_same_winograd", lambda *a: calls.append(1) or real(*a))
+    auto_loss = lambda p: loss(p, nsrr.Config())  # noqa: E731
+    jax.eval_shape(jax.grad(auto_loss), params)  # traced only: the choice
+    assert len(calls) == 12
+    calls.clear()
+    monkeypatch.setattr(nsrr, "WINOGRAD_PIXELS", 4 * 4)  # the 4x4 maps alone
+    jax.eval_shape(jax.grad(auto_loss), params)
+    assert len(calls) == 4  # the LR extractors' middle layers, the U-Net's lowest level
+
+
 @pytest.mark.parametrize("shape", [(1,), (7,), (64,), (3, 3, 12, 50), (50, 16)])
 def test_init_draws_are_jax_uniform_draws(shape):
     """layers.uniform (the models' inits) draws from a power-of-two length and keeps the

@@ -110,35 +110,69 @@ def test_winograd_rejects_what_it_cannot_compute(rng):
         winograd.conv3x3_valid(jnp.zeros((1, 2, 6, 2)), jnp.zeros((3, 3, 2, 2)))
     with pytest.raises(ValueError, match="conv_edge_winograd takes 3x3 kernels"):
         jax.vjp(layers.conv_edge_winograd, x, jnp.zeros((5, 5, 2, 2)), jnp.zeros(2))
+    with pytest.raises(ValueError, match="conv_same_winograd takes 3x3 kernels"):
+        jax.vjp(layers.conv_same_winograd, x, jnp.zeros((5, 5, 2, 2)), jnp.zeros(2))
+    with pytest.raises(ValueError, match=r"form: expected one of \('autodiff', 'custom', "
+                                         r"'winograd'\), got 'auto'"):
+        layers.conv_same(x, {"kernel": jnp.zeros((3, 3, 2, 2)), "bias": jnp.zeros(2)},
+                         form="auto")
 
 
-def test_conv_edge_winograd_equals_conv_edge_float64(x64, rng):
-    """``conv_edge_winograd``: its value, its forward under differentiation and its
-    three gradients are ``conv_edge``'s (1e-10), and its gradients match finite
-    differences."""
-    x, k, b = _draw(rng, (6, 9), 3, 32, 32)
-    g = jnp.asarray(rng.normal(size=(2, 6, 9, 32)))
+# (Winograd form, its reference, map, channels in, out): the edge-padded trunk's at
+# DLCTUS's width, the zero-padded one on a map no tile divides
+WINOGRAD_FORMS = [(layers.conv_edge_winograd, layers.conv_edge, (6, 9), 32, 32),
+                  (layers.conv_same_winograd, layers.conv, (7, 10), 32, 16)]
+
+
+@pytest.mark.parametrize("fn,ref,shape,c_in,c_out", WINOGRAD_FORMS)
+def test_winograd_forms_equal_their_convolution_float64(x64, rng, fn, ref, shape, c_in,
+                                                        c_out):
+    """``conv_edge_winograd`` and ``conv_same_winograd``: the value, the forward under
+    differentiation and the three gradients are those of the convolution each stands
+    for (1e-10), and the gradients match finite differences."""
+    x, k, b = _draw(rng, shape, 3, c_in, c_out)
+    g = jnp.asarray(rng.normal(size=(2, *shape, c_out)))
     # each function jitted: one program each way rather than one per operation
-    want, vjp_ref = jax.vjp(jax.jit(layers.conv_edge), x, k, b)
-    np.testing.assert_allclose(layers.conv_edge_winograd(x, k, b), want, rtol=0, atol=1e-13)
-    got, vjp = jax.vjp(jax.jit(layers.conv_edge_winograd), x, k, b)
+    want, vjp_ref = jax.vjp(jax.jit(ref), x, k, b)
+    np.testing.assert_allclose(fn(x, k, b), want, rtol=0, atol=1e-13)
+    got, vjp = jax.vjp(jax.jit(fn), x, k, b)
     np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-10)
     for a, c in zip(vjp(g), vjp_ref(g)):
         np.testing.assert_allclose(a, c, rtol=1e-10, atol=1e-10)
     x, k, b = _draw(rng, (5, 3), 3)
-    check_grads(jax.jit(layers.conv_edge_winograd), (x, k, b), order=1, modes=("rev",),
-                eps=1e-6, atol=1e-7, rtol=1e-7)
+    check_grads(jax.jit(fn), (x, k, b), order=1, modes=("rev",), eps=1e-6, atol=1e-7,
+                rtol=1e-7)
 
 
-def test_conv_edge_winograd_float32_within_rounding_of_the_direct_convolution(rng):
-    """In float32 F(4x4)'s transforms round differently from XLA's convolution: its
-    forward under differentiation and its input gradient stay within 1e-5 of the
-    largest value, at DLCTUS's trunk width and a training map size."""
-    x, k, b = _draw(rng, (32, 32), 3, 32, 32, np.float32)
-    k = k * 0.1
-    g = jnp.asarray(rng.normal(size=(2, 32, 32, 32)).astype(np.float32))
-    want, vjp_ref = jax.vjp(jax.jit(layers.conv_edge_fast), x, k, b)
-    got, vjp = jax.vjp(jax.jit(layers.conv_edge_winograd), x, k, b)
+@pytest.mark.parametrize("fn,direct,side,width,scale", [
+    (layers.conv_edge_winograd, layers.conv_edge_fast, 32, 32, 0.1),   # DLCTUS's trunk
+    (layers.conv_same_winograd, layers.conv_same_fast, 64, 64, 0.05)])  # NSRR's U-Net
+def test_winograd_forms_float32_within_rounding_of_the_direct_convolution(rng, fn, direct,
+                                                                         side, width, scale):
+    """In float32 F(4x4)'s transforms round differently from XLA's convolution: the
+    forward under differentiation and the input gradient stay within 1e-5 of the
+    largest value, at DLCTUS's trunk width and NSRR's U-Net width on training map sizes."""
+    x, k, b = _draw(rng, (side, side), 3, width, width, np.float32)
+    k = k * scale
+    g = jnp.asarray(rng.normal(size=(2, side, side, width)).astype(np.float32))
+    want, vjp_ref = jax.vjp(jax.jit(direct), x, k, b)
+    got, vjp = jax.vjp(jax.jit(fn), x, k, b)
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-5 * float(jnp.abs(want).max()))
     for a, c in zip(vjp(g), vjp_ref(g)):
         np.testing.assert_allclose(a, c, rtol=0, atol=1e-5 * float(jnp.abs(c).max()))
+
+
+def test_conv_same_forms_have_one_value_and_one_gradient_float64(x64, rng):
+    """``conv_same``'s forms (``"custom"``, ``"winograd"``, ``"autodiff"``) compute the same
+    convolution and the same gradients, for the 3x3 kernel Winograd takes and for a 5x5
+    one, which it leaves to the custom backward."""
+    for ksize in (3, 5):
+        x, k, b = _draw(rng, (6, 5), ksize, 4, 3)
+        p = {"kernel": k, "bias": b}
+        grads = {form: jax.grad(lambda x, p, form=form: jnp.sum(
+            jnp.sin(layers.conv_same(x, p, form=form))), (0, 1))(x, p)
+                 for form in ("custom", "winograd", "autodiff")}
+        for form in ("custom", "winograd"):
+            for a, c in zip(jax.tree_util.tree_leaves(grads[form]),
+                            jax.tree_util.tree_leaves(grads["autodiff"])):
+                np.testing.assert_allclose(a, c, rtol=1e-10, atol=1e-10)

@@ -25,7 +25,7 @@ from jtus import cli, files, hostmem, models, recipe, sampling, sharding, train
 from jtus import config as run_config
 from jtus.bench.report import markdown
 from jtus.bench.workloads import SIZES, bench_infer, bench_train, peaks
-from jtus.models import dlctus
+from jtus.models import dlctus, layers
 from jtus.timing import hardware
 
 
@@ -137,9 +137,9 @@ def _parser():
                         "(Config.hoist)")
     t.add_argument("--train-kernels", nargs="+", default=["auto"], choices=dlctus.KERNELS,
                    help="trunk implementations to time the training step with")
-    t.add_argument("--train-conv-backward", nargs="+", choices=dlctus.CONV_BACKWARDS,
+    t.add_argument("--train-conv-backward", nargs="+", choices=layers.CONV_BACKWARDS,
                    default=["auto"],
-                   help="how DLCTUS's trunk convolutions are differentiated "
+                   help="how the convolutions of the models that take it are differentiated "
                         "(Config.conv_backward); each is timed beside PyTorch")
     t.add_argument("--train-preset", metavar="NAME", choices=tuple(run_config.PRESETS),
                    help="time the training step of a jtus.train preset (e.g. diverse, the "

@@ -22,7 +22,7 @@ import optax
 
 from jtus import cost, losses, models, rollout, sharding, train
 from jtus.frame import Frame
-from jtus.models import dlctus, layers
+from jtus.models import layers
 from jtus.timing import timeit, timeit_pair, timeit_round_robin
 
 SIZES = {"720p": (720, 1280), "1080p": (1080, 1920), "4k": (2160, 3840), "256": (256, 256),
@@ -198,9 +198,8 @@ def bench_train(factor, crop, batch, seq, loss_frames, repeats, remat=False, unr
     rec = {"model": name, "factor": factor, "crop": crop, "batch": batch, "seq": seq,
            "loss_frames": loss_frames, "gflop_per_step": 3 * fwd / 1e9,
            "remat": remat, "unroll": bool(unroll is True),
-           "conv_backward": (model.config.conv_form(pixels=batch // run.devices
-                                                     * (crop // dlctus.DOWN) ** 2)
-                             if hasattr(model.config, "conv_form") else "-"),
+           "conv_backward": (model.config.train_conv_form(batch // run.devices, crop)
+                             if hasattr(model.config, "train_conv_form") else "-"),
            "warp": getattr(model.config, "warp", "-"), "hoist": hoist,
            "kernels": model.config.trunk_form() if hasattr(model.config, "trunk_form") else "-",
            "devices": run.devices}

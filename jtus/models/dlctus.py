@@ -58,7 +58,6 @@ from jtus.models.base import (Cost, ExportIO, Model, Spec, bind, carry_dtype, co
                               reset_select)
 
 FORMULATIONS = ("standard", "opt1", "opt2")
-CONV_BACKWARDS = ("auto", "autodiff", "custom", "winograd")
 # the trunk's forms (jtus.models.kernels); "auto" picks by measurement (Config.trunk_form)
 KERNELS = ("auto", "xla", "im2col", "pallas")
 DOWN = 4  # the network works at 1/4 of the HR resolution
@@ -112,8 +111,8 @@ class Config:
         if self.channels != 2 * DOWN * DOWN:
             raise ValueError(f"channels: the pixel shuffle to 2 outputs needs "
                              f"{2 * DOWN * DOWN}, got {self.channels}")
-        if self.conv_backward not in CONV_BACKWARDS:
-            raise ValueError(f"conv_backward: expected one of {CONV_BACKWARDS}, "
+        if self.conv_backward not in layers.CONV_BACKWARDS:
+            raise ValueError(f"conv_backward: expected one of {layers.CONV_BACKWARDS}, "
                              f"got {self.conv_backward!r}")
         if self.kernels not in KERNELS:
             raise ValueError(f"kernels: expected one of {KERNELS}, got {self.kernels!r}")
@@ -140,6 +139,11 @@ class Config:
         lo, hi = WINOGRAD_PIXELS
         fits = pixels is None or lo <= pixels <= hi
         return "winograd" if cpu and fits and self.dtype in ("float32", "float64") else "custom"
+
+    def train_conv_form(self, batch, crop, backend=None):
+        """The trunk's form in a training step on ``batch`` crops of ``crop`` HR pixels
+        per device (``python -m jtus.bench`` records it)."""
+        return self.conv_form(backend, batch * (crop // DOWN) ** 2)
 
     def trunk_form(self, backend=None):
         """The trunk's form on ``backend`` (JAX's default if None): ``kernels``, or for

@@ -33,6 +33,7 @@ our copy of the paper lacks; the defaults (feature extraction 32-32-8, reweighti
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import NamedTuple
 
 import jax
@@ -45,6 +46,13 @@ from jtus.models import base, layers
 from jtus.models.base import EXPOSURE, Cost, Model, Spec, bind
 
 FEATURES = 12  # 8 learned + RGB-D
+# conv_backward="auto" differentiates NSRR's 3x3 layers of at least WINOGRAD_CHANNELS
+# (in, out) by Winograd on a CPU, on maps of at most WINOGRAD_PIXELS per device (batch x
+# height x width): its training step at crop 128 (maps up to 2 x 128 x 128, the batch
+# split over two devices) was faster with it; larger maps were not measured, and
+# DLCTUS's trunk was slower by Winograd on 2 x 128 x 128 maps of 32 channels
+WINOGRAD_PIXELS = 2 * 128 * 128
+WINOGRAD_CHANNELS = (32, 16)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,6 +69,9 @@ class Config:
     near: float = NEAR
     far: float = FAR
     exposure: str = "absolute"  # or "normalized" (module docstring)
+    # how the convolutions are differentiated: "custom" (layers.conv_same_fast),
+    # "winograd" (layers.conv_same_winograd), "autodiff"; "auto": Config.conv_form
+    conv_backward: str = "auto"
 
     def __post_init__(self):
         if self.extract[-1] != FEATURES - 4:
@@ -71,6 +82,35 @@ class Config:
             raise ValueError(f"frames: expected >= 1, got {self.frames}")
         if self.exposure not in EXPOSURE:
             raise ValueError(f"exposure: expected one of {EXPOSURE}, got {self.exposure!r}")
+        if self.conv_backward not in layers.CONV_BACKWARDS:
+            raise ValueError(f"conv_backward: expected one of {layers.CONV_BACKWARDS}, "
+                             f"got {self.conv_backward!r}")
+
+    def conv_form(self, backend=None, pixels=None, channels=None):
+        """How a 3x3 convolution from ``channels = (in, out)`` over maps of ``pixels``
+        (batch x height x width on one device) is differentiated on ``backend`` (JAX's
+        default if None; None for the others: any). ``"winograd"`` (Winograd's F(4x4,
+        3x3) forward and input gradient, ``layers.conv_same_winograd``) applies to the
+        layers of at least ``WINOGRAD_CHANNELS``, which NSRR's layer timings favour,
+        and leaves narrower ones (where the transforms cost more than the multiplies
+        they save: 0.65-0.89x) to ``"custom"``. ``"auto"`` is ``"winograd"`` on a CPU for
+        the full-width model on maps of at most ``WINOGRAD_PIXELS``, where its training
+        step measured 1.03x as fast (docs/performance.md), and ``"custom"`` elsewhere:
+        ``fast``'s halved widths (0.97x), larger maps and GPUs (not measured). Other
+        kernel sizes take ``"custom"``'s backward under any form but ``"autodiff"``;
+        without differentiation every form is ``layers.conv``."""
+        form = self.conv_backward
+        if form == "auto":
+            cpu = (backend or jax.default_backend()) == "cpu"
+            fits = pixels is None or pixels <= WINOGRAD_PIXELS
+            form = "winograd" if cpu and fits and not self.fast else "custom"
+        wide = channels is None or all(c >= m for c, m in zip(channels, WINOGRAD_CHANNELS))
+        return "custom" if form == "winograd" and not wide else form
+
+    def train_conv_form(self, batch, crop, backend=None):
+        """The form of the widest layers of a training step on ``batch`` crops of
+        ``crop`` HR pixels per device (``python -m jtus.bench`` records it)."""
+        return self.conv_form(backend, batch * crop * crop)
 
     def unet_widths(self):
         return tuple(max(1, w // 2) for w in self.unet) if self.fast else self.unet
@@ -107,9 +147,16 @@ def init(key, config: Config = Config()):
             "unet": [_conv_init(kk, 3, i, o) for kk, i, o in zip(ku, unet_in, unet_out)]}
 
 
-def _run(stack, x, last_relu=True):
+def _conv(x, p, config):
+    """``layers.conv_same`` differentiated as ``config.conv_form`` picks for its shape."""
+    form = config.conv_form(pixels=math.prod(x.shape[:3]),
+                            channels=p["kernel"].shape[2:])
+    return layers.conv_same(x, p, form=form)
+
+
+def _run(stack, x, config, last_relu=True):
     for i, p in enumerate(stack):
-        x = layers.conv_same(x, p)
+        x = _conv(x, p, config)
         if last_relu or i < len(stack) - 1:
             x = jax.nn.relu(x)
     return x
@@ -120,15 +167,15 @@ def _pool(x):
     return x.reshape(b, h // 2, 2, w // 2, 2, c).max((2, 4))
 
 
-def _unet(ps, x):
-    relu = jax.nn.relu
-    s1 = relu(layers.conv_same(relu(layers.conv_same(x, ps[0])), ps[1]))
-    s2 = relu(layers.conv_same(relu(layers.conv_same(_pool(s1), ps[2])), ps[3]))
-    s3 = relu(layers.conv_same(relu(layers.conv_same(_pool(s2), ps[4])), ps[5]))
-    u2 = jnp.concatenate([sampling.upsample(s3, 2), s2], -1)
-    u2 = relu(layers.conv_same(relu(layers.conv_same(u2, ps[6])), ps[7]))
-    u1 = jnp.concatenate([sampling.upsample(u2, 2), s1], -1)
-    return layers.conv_same(relu(layers.conv_same(u1, ps[8])), ps[9])
+def _unet(ps, x, config):
+    def conv2(x, i, last_relu=True):  # layers i and i + 1
+        return _run(ps[i:i + 2], x, config, last_relu)
+
+    s1 = conv2(x, 0)
+    s2 = conv2(_pool(s1), 2)
+    s3 = conv2(_pool(s2), 4)
+    u2 = conv2(jnp.concatenate([sampling.upsample(s3, 2), s2], -1), 6)
+    return conv2(jnp.concatenate([sampling.upsample(u2, 2), s1], -1), 8, last_relu=False)
 
 
 def _rgbd(frame, config):
@@ -151,8 +198,8 @@ def features(params, frame, config):
     f = config.factor
     rgbd = _rgbd(frame, config)
     jit = frame.jitter.astype(jnp.float32)
-    cur = jnp.concatenate([rgbd, _run(params["extract_current"], rgbd)], -1)
-    prev = jnp.concatenate([rgbd, _run(params["extract_previous"], rgbd)], -1)
+    cur = jnp.concatenate([rgbd, _run(params["extract_current"], rgbd, config)], -1)
+    prev = jnp.concatenate([rgbd, _run(params["extract_previous"], rgbd, config)], -1)
     return sampling.zero_upsample(cur, jit, f), sampling.zero_upsample(prev, jit, f)
 
 
@@ -161,7 +208,7 @@ def reweight_maps(params, cur, warped, config):
     n = config.frames
     rgbd_prev = [warped[..., i * FEATURES:i * FEATURES + 4] for i in range(n)]
     x = jnp.concatenate([cur[..., :4]] + rgbd_prev, -1)
-    t = jnp.tanh(_run(params["reweight"], x, last_relu=False))
+    t = jnp.tanh(_run(params["reweight"], x, config, last_relu=False))
     return config.scale * (t + 1) / 2
 
 
@@ -183,7 +230,7 @@ def step(params, state: State, frame: Frame, config: Config = Config()):
         scaled = [warped[..., i * FEATURES:(i + 1) * FEATURES] * wts[..., i:i + 1]
                   for i in range(n)]
     with jax.named_scope("reconstruction"):
-        out = _unet(params["unet"], jnp.concatenate([cur] + scaled, -1))
+        out = _unet(params["unet"], jnp.concatenate([cur] + scaled, -1), config)
         if config.ycbcr:
             out = sampling.ycbcr_to_rgb(out)
         if config.exposure == "normalized":

@@ -16,7 +16,10 @@ crop 256 with the forward and input-gradient convolutions in this form
 (``layers.conv_edge_winograd``), 0.97x on 16x16 maps (its many small operations) and on
 128x128 maps (transformed tiles beyond the cache), which ``dlctus.WINOGRAD_PIXELS``
 leaves to the direct form; the inference frames' trunk (180x320 and larger) gains too
-little to use (``python experiments/trunk_winograd.py``, docs/performance.md).
+little to use (``python experiments/trunk_winograd.py``, docs/performance.md). NSRR's
+training step (``layers.conv_same_winograd`` on its layers of 32 or more channels to 16
+or more, maps up to 2 x 128 x 128) ran 1.03x as fast, NSRR-fast's halved widths no
+faster (``python experiments/same_winograd.py``).
 """
 
 from __future__ import annotations
