@@ -315,15 +315,22 @@ def _same_fwd(x, kernel, bias):
     return conv(x, kernel, bias), (x, kernel)
 
 
-def _same_bwd(res, g):
+def _same_grads(res, g, same):
+    """The three gradients of a zero-padded SAME convolution whose input ``x`` was kept:
+    the kernel's by ``_kernel_grad`` of the padded input, the input's as ``same(g,
+    flipped kernel)``, a SAME convolution (the adjoint of a zero-padded SAME one)."""
     x, kernel = res
     p = (kernel.shape[0] - 1) // 2
     q = (kernel.shape[1] - 1) // 2
     xp = jnp.pad(x, ((0, 0), (p, p), (q, q), (0, 0)))
     dk = _kernel_grad(xp, g)
-    flipped = jnp.flip(kernel, (0, 1)).transpose(0, 1, 3, 2)
-    dx = conv(g, flipped.astype(g.dtype))  # SAME: the adjoint of a zero-padded SAME conv
+    flipped = jnp.flip(kernel, (0, 1)).transpose(0, 1, 3, 2).astype(g.dtype)
+    dx = same(g, flipped)
     return dx.astype(x.dtype), dk.astype(kernel.dtype), g.sum((0, 1, 2)).astype(kernel.dtype)
+
+
+def _same_bwd(res, g):
+    return _same_grads(res, g, conv)
 
 
 conv_same_fast.defvjp(_same_fwd, _same_bwd)
@@ -345,18 +352,17 @@ def _same_winograd_fwd(x, kernel, bias):
     if kernel.shape[:2] != (3, 3):
         raise ValueError(f"kernel: conv_same_winograd takes 3x3 kernels, got shape "
                          f"{kernel.shape}")
-    xp = jnp.pad(x, ((0, 0), (1, 1), (1, 1), (0, 0)))
-    y = winograd.conv3x3_valid(xp, kernel.astype(x.dtype)) + bias.astype(x.dtype)
+    y = _same_winograd(x, kernel.astype(x.dtype)) + bias.astype(x.dtype)
     return y, (x, kernel)
 
 
+def _same_winograd(x, kernel):
+    """The SAME 3x3 convolution by Winograd's F(4x4, 3x3): VALID on ``x`` zero-padded."""
+    return winograd.conv3x3_valid(jnp.pad(x, ((0, 0), (1, 1), (1, 1), (0, 0))), kernel)
+
+
 def _same_winograd_bwd(res, g):
-    x, kernel = res
-    xp = jnp.pad(x, ((0, 0), (1, 1), (1, 1), (0, 0)))
-    dk = _kernel_grad(xp, g)
-    flipped = jnp.flip(kernel, (0, 1)).transpose(0, 1, 3, 2).astype(g.dtype)
-    dx = winograd.conv3x3_valid(jnp.pad(g, ((0, 0), (1, 1), (1, 1), (0, 0))), flipped)
-    return dx.astype(x.dtype), dk.astype(kernel.dtype), g.sum((0, 1, 2)).astype(kernel.dtype)
+    return _same_grads(res, g, _same_winograd)
 
 
 conv_same_winograd.defvjp(_same_winograd_fwd, _same_winograd_bwd)

@@ -91,9 +91,9 @@ class Config:
         (batch x height x width on one device) is differentiated on ``backend`` (JAX's
         default if None; None for the others: any). ``"winograd"`` (Winograd's F(4x4,
         3x3) forward and input gradient, ``layers.conv_same_winograd``) applies to the
-        layers of at least ``WINOGRAD_CHANNELS``, which NSRR's layer timings favour,
-        and leaves narrower ones (where the transforms cost more than the multiplies
-        they save: 0.65-0.89x) to ``"custom"``. ``"auto"`` is ``"winograd"`` on a CPU for
+        layers of at least ``WINOGRAD_CHANNELS`` and leaves narrower ones, where the
+        transforms cost more than the multiplies they save (0.64-0.92x, layer by
+        layer), to ``"custom"``. ``"auto"`` is ``"winograd"`` on a CPU for
         the full-width model on maps of at most ``WINOGRAD_PIXELS``, where its training
         step measured 1.03x as fast (docs/performance.md), and ``"custom"`` elsewhere:
         ``fast``'s halved widths (0.97x), larger maps and GPUs (not measured). Other
