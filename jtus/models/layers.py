@@ -192,13 +192,17 @@ def conv_edge_winograd(x, kernel, bias):
     return conv_edge(x, kernel, bias)
 
 
-def _winograd_fwd(x, kernel, bias):
+def _winograd_biased(name, xp, kernel, bias):
+    """``name``'s forward pass under differentiation: the VALID 3x3 convolution of the
+    padded ``xp`` by ``winograd.conv3x3_valid``, plus the bias; other kernels refused."""
     if kernel.shape[:2] != (3, 3):
-        raise ValueError(f"kernel: conv_edge_winograd takes 3x3 kernels, got shape "
-                         f"{kernel.shape}")
+        raise ValueError(f"kernel: {name} takes 3x3 kernels, got shape {kernel.shape}")
+    return winograd.conv3x3_valid(xp, kernel.astype(xp.dtype)) + bias.astype(xp.dtype)
+
+
+def _winograd_fwd(x, kernel, bias):
     xp = pad_edge(x, 1)
-    y = winograd.conv3x3_valid(xp, kernel.astype(x.dtype)) + bias.astype(x.dtype)
-    return y, (xp, kernel)
+    return _winograd_biased("conv_edge_winograd", xp, kernel, bias), (xp, kernel)
 
 
 def _full_winograd(g, flipped):
@@ -348,17 +352,17 @@ def conv_same_winograd(x, kernel, bias):
     return conv(x, kernel, bias)
 
 
+def _zero_pad1(x):
+    return jnp.pad(x, ((0, 0), (1, 1), (1, 1), (0, 0)))
+
+
 def _same_winograd_fwd(x, kernel, bias):
-    if kernel.shape[:2] != (3, 3):
-        raise ValueError(f"kernel: conv_same_winograd takes 3x3 kernels, got shape "
-                         f"{kernel.shape}")
-    y = _same_winograd(x, kernel.astype(x.dtype)) + bias.astype(x.dtype)
-    return y, (x, kernel)
+    return _winograd_biased("conv_same_winograd", _zero_pad1(x), kernel, bias), (x, kernel)
 
 
 def _same_winograd(x, kernel):
     """The SAME 3x3 convolution by Winograd's F(4x4, 3x3): VALID on ``x`` zero-padded."""
-    return winograd.conv3x3_valid(jnp.pad(x, ((0, 0), (1, 1), (1, 1), (0, 0))), kernel)
+    return winograd.conv3x3_valid(_zero_pad1(x), kernel)
 
 
 def _same_winograd_bwd(res, g):
